@@ -1,0 +1,26 @@
+"""Named camera profiles shipped with EVP (``evp calibrate --list-profiles``)."""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+from evp.calib.camera_files import read_camera
+from evp.errors import EvpError
+from evp.types import CameraModel
+
+
+def _profile_dir() -> Path:
+    return Path(str(resources.files("evp.calib") / "profile_files"))
+
+
+def profile_names() -> list[str]:
+    return sorted(p.stem for p in _profile_dir().glob("*.yaml"))
+
+
+def load_profile(name: str) -> CameraModel:
+    """A shipped camera profile by name, e.g. ``nexus5x_640x380`` (seed 000's phone)."""
+    path = _profile_dir() / f"{name}.yaml"
+    if not path.is_file():
+        raise EvpError(f"unknown camera profile {name!r}; known: {', '.join(profile_names())}")
+    return read_camera(path)

@@ -1,0 +1,207 @@
+"""The ``evp`` command line. Heavy modules are imported inside each command, so ``evp --help`` is fast."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from evp import __version__
+from evp.errors import EvpError
+
+HELP = """EVP: where is the vehicle, from its phone camera.
+
+Examples:
+
+  evp info data/sample/davis_slider_depth        what a dataset holds
+
+  evp eval groundtruth.txt estimate.txt --align sim3 --json metrics.json --report report/
+
+  evp calibrate board_images/ --pattern chessboard --cols 9 --rows 7 --square 0.025 --out camera.yaml
+
+  evp convert poses.txt poses.tum --to tum --times times.txt
+
+  evp config dump > settings.yaml
+"""
+
+app = typer.Typer(help=HELP, no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False, rich_markup_mode=None)
+config_app = typer.Typer(help="Settings: show the defaults.", no_args_is_help=True)
+app.add_typer(config_app, name="config")
+_state = {"debug": False}
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"evp {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="Print the version and exit."),
+    debug: bool = typer.Option(False, "--debug", help="Show full tracebacks for errors."),
+) -> None:
+    _state["debug"] = debug
+
+
+@app.command()
+def info(
+    path: Path = typer.Argument(..., help="Dataset folder or file (format auto-detected)."),
+    fmt: Optional[str] = typer.Option(None, "--format", help="Reader name, to skip auto-detection."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of text."),
+) -> None:
+    """Print what a dataset holds: format, frames, rate, duration, sensors, calibration, ground truth."""
+    from evp.io.registry import open_dataset
+    from evp.io.summary import describe, summarise
+
+    summary = summarise(open_dataset(path, fmt))
+    typer.echo(json.dumps(summary, indent=2) if as_json else describe(summary))
+
+
+@app.command()
+def formats() -> None:
+    """List the dataset formats EVP reads, in detection order."""
+    from evp.io.registry import readers
+
+    for reader in readers():
+        typer.echo(f"{reader.name:14s} {reader.description}")
+
+
+@app.command("eval")
+def evaluate_command(
+    ref: Path = typer.Argument(..., help="Reference trajectory (TUM, KITTI or EuRoC CSV)."),
+    est: Path = typer.Argument(..., help="Estimated trajectory (TUM, KITTI or EuRoC CSV)."),
+    align: str = typer.Option("sim3", "--align", help="none, se3 or sim3 (Umeyama)."),
+    n_align: Optional[int] = typer.Option(None, "--n-align", help="Align on the first N matched poses only."),
+    max_diff: float = typer.Option(0.01, "--t-max-diff", help="Largest time difference (s) for matching poses."),
+    offset: float = typer.Option(0.0, "--t-offset", help="Seconds added to the estimate's timestamps."),
+    ref_times: Optional[Path] = typer.Option(None, "--ref-times", help="times.txt for a KITTI reference."),
+    est_times: Optional[Path] = typer.Option(None, "--est-times", help="times.txt for a KITTI estimate."),
+    rpe_delta: float = typer.Option(1.0, "--rpe-delta", help="RPE pair distance."),
+    rpe_unit: str = typer.Option("frames", "--rpe-unit", help="frames or m."),
+    z_target: Optional[float] = typer.Option(None, "--z-target", help="Also report poses with |z_ref - Z| < --z-tol."),
+    z_tol: float = typer.Option(2.0, "--z-tol", help="Tolerance (m) of the z subset."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Write all statistics as JSON."),
+    report: Optional[Path] = typer.Option(None, "--report", help="Write plots and a Markdown summary to this folder."),
+) -> None:
+    """Compare an estimated trajectory with a reference: APE, RPE, XY RMSE, quartiles (evo's conventions)."""
+    from evp.eval.cli_support import run_evaluation
+
+    result = run_evaluation(ref, est, align, n_align, max_diff, offset, ref_times, est_times, rpe_delta, rpe_unit, z_target, z_tol)
+    summary = result.summary()
+    stats = summary["ape_translation_m"]
+    typer.echo(f"matched poses {summary['matched_poses']}, alignment {align}, scale {result.alignment.scale:.6g}")
+    typer.echo("APE translation (m): " + "  ".join(f"{k} {stats[k]:.6g}" for k in ("rmse", "mean", "median", "std", "min", "max", "q1", "q3", "iqr")))
+    typer.echo(f"XY RMSE (m): {summary['xy_rmse']:.6g}   APE rotation RMSE (deg): {summary['ape_rotation_deg']['rmse']:.6g}")
+    if "rpe" in summary:
+        typer.echo(f"RPE ({rpe_delta:g} {rpe_unit}): translation RMSE {summary['rpe']['translation_m']['rmse']:.6g} m, rotation RMSE {summary['rpe']['rotation_deg']['rmse']:.6g} deg")
+    if "subset" in summary and summary["subset"]["ape_translation_m"]:
+        typer.echo(f"subset {summary['subset']['rule']}: {summary['subset']['poses']} poses, RMSE {summary['subset']['ape_translation_m']['rmse']:.6g} m")
+    if json_out:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(summary, indent=2))
+    if report:
+        from evp.eval.report import write_report
+
+        typer.echo(f"report: {write_report(result, report, ref.name, est.name)}")
+
+
+@app.command()
+def convert(
+    src: Path = typer.Argument(..., help="Trajectory file (TUM, KITTI, EuRoC CSV or EVP CSV)."),
+    dst: Path = typer.Argument(..., help="Output file."),
+    to: str = typer.Option("tum", "--to", help="tum, kitti or csv."),
+    times: Optional[Path] = typer.Option(None, "--times", help="times.txt giving stamps to a KITTI input."),
+) -> None:
+    """Convert a trajectory between formats (full float precision)."""
+    from evp.io.trajectory import TrajectoryFormat, read_timestamps, read_trajectory, write_trajectory
+
+    trajectory = read_trajectory(src)
+    if times is not None:
+        trajectory = trajectory.with_timestamps(read_timestamps(times)[: len(trajectory)])
+    try:
+        fmt = TrajectoryFormat(to)
+    except ValueError:
+        raise EvpError(f"--to must be tum, kitti or csv, not {to!r}") from None
+    if fmt is TrajectoryFormat.TUM and trajectory.timestamps is None:
+        raise EvpError(f"{src} has no timestamps; give --times times.txt to write TUM")
+    write_trajectory(dst, trajectory, fmt)
+    typer.echo(f"wrote {len(trajectory)} poses to {dst} ({fmt.value})")
+
+
+@app.command()
+def calibrate(
+    source: Path = typer.Argument(..., help="Folder of images or a video of the board."),
+    out: Path = typer.Option(Path("camera.yaml"), "--out", help="OpenCV FileStorage YAML to write."),
+    pattern: str = typer.Option("chessboard", "--pattern", help="chessboard or charuco."),
+    cols: int = typer.Option(..., "--cols", help="Squares across the board."),
+    rows: int = typer.Option(..., "--rows", help="Squares down the board."),
+    square: float = typer.Option(..., "--square", help="Square side (m)."),
+    marker: float = typer.Option(0.0, "--marker", help="ChArUco marker side (m)."),
+    dictionary: str = typer.Option("DICT_4X4_50", "--dictionary", help="ArUco dictionary of a ChArUco board."),
+    every: int = typer.Option(1, "--every", min=1, help="Use every N-th image or video frame."),
+    k3: bool = typer.Option(False, "--k3", help="Also estimate k3 (wide lenses)."),
+) -> None:
+    """Calibrate a camera from chessboard or ChArUco views; bad views are rejected and reported."""
+    from evp.calib.calibrate import BoardSpec, calibrate_views, images_from_path
+    from evp.calib.camera_files import write_opencv_yaml
+
+    try:
+        board = BoardSpec(pattern, cols, rows, square, marker, dictionary)
+    except ValueError as exc:
+        raise EvpError(str(exc)) from None
+    result = calibrate_views(images_from_path(source, every), board, fix_k3=not k3)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_opencv_yaml(out, result.camera, {"rms_reprojection_error_px": result.rms_px, "views_used": len(result.per_view_rms_px)})
+    typer.echo(result.report())
+    typer.echo(f"wrote {out}")
+
+
+@app.command()
+def camera(
+    source: str = typer.Argument(..., help="Calibration file (OpenCV, ROS, ORB-SLAM, Kalibr, EuRoC) or profile name."),
+    width: Optional[int] = typer.Option(None, "--width", help="Rescale to this width (with --height)."),
+    height: Optional[int] = typer.Option(None, "--height", help="Rescale to this height (with --width)."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Write it as OpenCV FileStorage YAML."),
+) -> None:
+    """Show a camera model from a file or a shipped profile (e.g. nexus5x_640x380); list profiles with 'list'."""
+    from evp.calib.camera_files import read_camera, write_opencv_yaml
+    from evp.calib.profiles import load_profile, profile_names
+
+    if source == "list":
+        typer.echo("\n".join(profile_names()))
+        return
+    model = read_camera(source) if Path(source).is_file() else load_profile(source)
+    if width and height:
+        model = model.scaled(width, height)
+    typer.echo(f"{model.name}: {model.width}x{model.height} fx {model.fx:.4f} fy {model.fy:.4f} cx {model.cx:.4f} cy {model.cy:.4f} "
+               f"k1 {model.k1:g} k2 {model.k2:g} p1 {model.p1:g} p2 {model.p2:g} k3 {model.k3:g}")
+    if out:
+        write_opencv_yaml(out, model)
+        typer.echo(f"wrote {out}")
+
+
+@config_app.command("dump")
+def config_dump(path: Optional[Path] = typer.Argument(None, help="Settings file to load first (else the defaults).")) -> None:
+    """Print the effective settings as YAML."""
+    from evp.config import load_settings, settings_yaml
+
+    typer.echo(settings_yaml(load_settings(path)), nl=False)
+
+
+def main() -> None:
+    """Entry point: user errors become one line on stderr (exit 2); ``--debug`` shows the traceback."""
+    try:
+        app()
+    except EvpError as exc:
+        if _state["debug"]:
+            raise
+        typer.echo(f"error: {exc}", err=True)
+        sys.exit(2)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1 @@
+"""Trajectory evaluation with evo's conventions: association, alignment, APE/RPE, statistics, plots."""

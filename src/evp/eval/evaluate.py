@@ -1,0 +1,107 @@
+"""One call that turns a reference and an estimate into every number EVP reports."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from evp.errors import EvaluationError
+from evp.eval.association import associate
+from evp.eval.metrics import (
+    Alignment,
+    DeltaUnit,
+    RelativeErrors,
+    align_trajectory,
+    ape_rotation_deg,
+    ape_translation,
+    ape_translation_xy,
+    relative_pose_errors,
+)
+from evp.eval.statistics import error_statistics
+from evp.geometry.alignment import Similarity
+from evp.io.trajectory import Trajectory
+
+
+@dataclass(frozen=True)
+class EvaluationOptions:
+    align: Alignment = Alignment.SIM3
+    n_align: int | None = None  # align on the first N matched poses only
+    max_diff_s: float = 0.01
+    offset_s: float = 0.0  # added to the estimate's stamps
+    rpe_delta: float = 1.0
+    rpe_unit: DeltaUnit = DeltaUnit.FRAMES
+    rpe_all_pairs: bool = False
+    z_target_m: float | None = None  # subset: poses whose reference z is near this value
+    z_tolerance_m: float = 2.0
+
+
+@dataclass(frozen=True)
+class EvaluationResult:
+    options: EvaluationOptions
+    ref: Trajectory  # matched reference poses
+    est: Trajectory  # matched estimate poses, aligned
+    alignment: Similarity
+    ape_translation: np.ndarray
+    ape_translation_xy: np.ndarray
+    ape_rotation_deg: np.ndarray
+    rpe: RelativeErrors | None
+    subset_mask: np.ndarray | None = field(default=None)
+
+    def summary(self) -> dict:
+        """JSON-ready numbers: APE translation statistics at the top level (the CLI contract)."""
+        out: dict = dict(error_statistics(self.ape_translation))
+        out["matched_poses"] = len(self.ref)
+        out["xy_rmse"] = float(np.sqrt(np.mean(self.ape_translation_xy**2)))
+        out["ape_translation_m"] = error_statistics(self.ape_translation)
+        out["ape_translation_xy_m"] = error_statistics(self.ape_translation_xy)
+        out["ape_rotation_deg"] = error_statistics(self.ape_rotation_deg)
+        if self.rpe is not None:
+            out["rpe"] = {
+                "delta": self.options.rpe_delta,
+                "unit": self.options.rpe_unit.value,
+                "pairs": len(self.rpe.pairs),
+                "translation_m": error_statistics(self.rpe.translation),
+                "rotation_deg": error_statistics(self.rpe.rotation_deg),
+            }
+        if self.subset_mask is not None:
+            selected = self.ape_translation[self.subset_mask]
+            out["subset"] = {
+                "rule": f"|z_ref - {self.options.z_target_m}| < {self.options.z_tolerance_m} m",
+                "poses": int(self.subset_mask.sum()),
+                "ape_translation_m": error_statistics(selected) if selected.size else None,
+                "xy_rmse": float(np.sqrt(np.mean(self.ape_translation_xy[self.subset_mask] ** 2))) if selected.size else None,
+            }
+        out["alignment"] = {
+            "mode": self.options.align.value,
+            "n_align": self.options.n_align,
+            "scale": self.alignment.scale,
+            "rotation": self.alignment.rotation.tolist(),
+            "translation": self.alignment.translation.tolist(),
+        }
+        out["reference_path_length_m"] = self.ref.path_length
+        return out
+
+
+def evaluate(ref: Trajectory, est: Trajectory, options: EvaluationOptions = EvaluationOptions()) -> EvaluationResult:
+    """Associate, align, and compute APE (translation, XY, rotation), RPE and the z subset."""
+    ref_matched, est_matched = associate(ref, est, options.max_diff_s, options.offset_s)
+    aligned, transform = align_trajectory(ref_matched, est_matched, options.align, options.n_align)
+    try:
+        rpe = relative_pose_errors(ref_matched, aligned, options.rpe_delta, options.rpe_unit, options.rpe_all_pairs)
+    except EvaluationError:
+        rpe = None
+    mask = None
+    if options.z_target_m is not None:
+        mask = np.abs(ref_matched.positions[:, 2] - options.z_target_m) < options.z_tolerance_m
+    return EvaluationResult(
+        options=options,
+        ref=ref_matched,
+        est=aligned,
+        alignment=transform,
+        ape_translation=ape_translation(ref_matched, aligned),
+        ape_translation_xy=ape_translation_xy(ref_matched, aligned),
+        ape_rotation_deg=ape_rotation_deg(ref_matched, aligned),
+        rpe=rpe,
+        subset_mask=mask,
+    )

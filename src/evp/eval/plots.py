@@ -1,0 +1,85 @@
+"""evo-style evaluation figures (PNG): top view, error over time, histogram, box plot."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from evp.eval.evaluate import EvaluationResult  # noqa: E402
+
+
+def _save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_top_view(result: EvaluationResult, path: Path) -> Path:
+    """Reference dashed grey, estimate coloured by its APE translation error."""
+    fig, ax = plt.subplots(figsize=(6.4, 5.6))
+    ax.plot(result.ref.positions[:, 0], result.ref.positions[:, 1], "--", color="0.45", label="reference")
+    points = ax.scatter(result.est.positions[:, 0], result.est.positions[:, 1], c=result.ape_translation, s=6, cmap="jet", label="estimate")
+    ax.plot(result.est.positions[:, 0], result.est.positions[:, 1], "-", color="0.2", lw=0.5, alpha=0.5)
+    fig.colorbar(points, ax=ax, label="APE translation (m)")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_title(f"Top view, {result.options.align.value} alignment")
+    ax.legend(loc="best")
+    ax.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def plot_error_over_time(result: EvaluationResult, path: Path) -> Path:
+    errors = result.ape_translation
+    t = result.ref.timestamps - result.ref.timestamps[0]
+    fig, ax = plt.subplots(figsize=(7.0, 3.6))
+    ax.plot(t, errors, color="tab:blue", lw=1.0, label="APE")
+    for name, style in (("rmse", "-"), ("mean", "--"), ("median", ":")):
+        value = float(np.sqrt(np.mean(errors**2))) if name == "rmse" else float(getattr(np, name)(errors))
+        ax.axhline(value, ls=style, color="tab:red" if name == "rmse" else "0.3", lw=1.0, label=f"{name} {value:.4g} m")
+    ax.fill_between(t, np.mean(errors) - np.std(errors), np.mean(errors) + np.std(errors), color="0.8", alpha=0.5, label="std")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("APE translation (m)")
+    ax.legend(loc="upper left", fontsize=8)
+    ax.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def plot_histogram(result: EvaluationResult, path: Path) -> Path:
+    fig, ax = plt.subplots(figsize=(5.2, 3.6))
+    ax.hist(result.ape_translation, bins=min(50, max(5, len(result.ape_translation) // 10)), color="tab:blue", alpha=0.8)
+    ax.set_xlabel("APE translation (m)")
+    ax.set_ylabel("poses")
+    ax.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def plot_boxplot(result: EvaluationResult, path: Path) -> Path:
+    data = [result.ape_translation, result.ape_translation_xy]
+    labels = ["3-D", "XY"]
+    if result.subset_mask is not None and result.subset_mask.any():
+        data.append(result.ape_translation[result.subset_mask])
+        labels.append(f"|z-{result.options.z_target_m:g}|<{result.options.z_tolerance_m:g}")
+    fig, ax = plt.subplots(figsize=(4.8, 3.8))
+    ax.boxplot(data, tick_labels=labels)
+    ax.set_ylabel("APE translation (m)")
+    ax.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def write_plots(result: EvaluationResult, directory: Path) -> list[Path]:
+    """All four figures into ``directory``; returns their paths."""
+    directory.mkdir(parents=True, exist_ok=True)
+    return [
+        plot_top_view(result, directory / "top_view.png"),
+        plot_error_over_time(result, directory / "ape_over_time.png"),
+        plot_histogram(result, directory / "ape_histogram.png"),
+        plot_boxplot(result, directory / "ape_boxplot.png"),
+    ]

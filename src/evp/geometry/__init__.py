@@ -1,0 +1,1 @@
+"""Rigid-body and similarity transforms shared by every part of EVP."""

@@ -1,0 +1,64 @@
+"""Least-squares similarity / rigid alignment of point sets (Umeyama, IEEE PAMI 1991)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from evp.errors import EvaluationError
+
+
+@dataclass(frozen=True)
+class Similarity:
+    """``y = scale * rotation @ x + translation``."""
+
+    rotation: np.ndarray
+    translation: np.ndarray
+    scale: float = 1.0
+
+    def apply(self, points: np.ndarray) -> np.ndarray:
+        """Transform an (N, d) array of points."""
+        return self.scale * points @ self.rotation.T + self.translation
+
+    def apply_to_poses(self, poses: np.ndarray) -> np.ndarray:
+        """Transform a stack of 4x4 poses: rotations are rotated, positions fully transformed."""
+        out = poses.copy()
+        out[:, :3, :3] = self.rotation @ poses[:, :3, :3]
+        out[:, :3, 3] = self.apply(poses[:, :3, 3])
+        return out
+
+    @staticmethod
+    def identity(dim: int = 3) -> "Similarity":
+        return Similarity(np.eye(dim), np.zeros(dim), 1.0)
+
+
+def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool) -> Similarity:
+    """Similarity (or rigid when ``with_scale`` is False) that best maps ``source`` onto ``target``.
+
+    Both are (N, d) arrays of corresponding points. Raises :class:`EvaluationError` when the
+    points are too few or degenerate (e.g. all on one line) to fix a rotation.
+    """
+    source = np.asarray(source, dtype=float)
+    target = np.asarray(target, dtype=float)
+    if source.shape != target.shape or source.ndim != 2:
+        raise EvaluationError(f"alignment needs two (N, d) arrays of equal shape, got {source.shape} and {target.shape}")
+    n, dim = source.shape
+    if n < 2:
+        raise EvaluationError(f"alignment needs at least 2 corresponding points, got {n}")
+    mean_s = source.mean(axis=0)
+    mean_t = target.mean(axis=0)
+    centred_s = source - mean_s
+    centred_t = target - mean_t
+    variance_s = np.sum(centred_s**2) / n
+    covariance = centred_t.T @ centred_s / n
+    u, d, vt = np.linalg.svd(covariance)
+    if np.count_nonzero(d > np.finfo(d.dtype).eps) < dim - 1:
+        raise EvaluationError("alignment is degenerate: the points do not span enough dimensions (rank-deficient covariance)")
+    s = np.eye(dim)
+    if np.linalg.det(u) * np.linalg.det(vt) < 0.0:
+        s[-1, -1] = -1.0
+    rotation = u @ s @ vt
+    scale = float(np.trace(np.diag(d) @ s) / variance_s) if with_scale else 1.0
+    translation = mean_t - scale * rotation @ mean_s
+    return Similarity(rotation, translation, scale)

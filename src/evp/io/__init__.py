@@ -1,0 +1,1 @@
+"""Adapters between files and EVP's records: dataset readers and trajectory files."""

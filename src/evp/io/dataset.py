@@ -1,0 +1,104 @@
+"""What every dataset reader returns: frames, telemetry, calibration and ground truth."""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from evp.errors import DatasetError
+from evp.io.trajectory import Trajectory
+from evp.types import BaroSample, CameraModel, Frame, GpsFix, ImuSample, WheelOdometry, WifiScan
+
+TelemetryRecord = ImuSample | GpsFix | BaroSample | WheelOdometry | WifiScan
+
+
+@dataclass
+class Dataset:
+    """A recorded sequence.
+
+    Images are loaded lazily by :meth:`frames`; everything else is held in memory. ``frame_times``
+    lists every frame's timestamp (seconds) so that summaries need not decode images.
+    """
+
+    name: str
+    format: str
+    root: Path
+    camera: CameraModel | None = None
+    frame_times: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    load_frames: Callable[[], Iterator[Frame]] | None = None
+    imu: list[ImuSample] = field(default_factory=list)
+    gps: list[GpsFix] = field(default_factory=list)
+    baro: list[BaroSample] = field(default_factory=list)
+    wheel: list[WheelOdometry] = field(default_factory=list)
+    wifi: list[WifiScan] = field(default_factory=list)
+    ground_truth: Trajectory | None = None
+    ground_truth_note: str = ""
+    trajectories: dict[str, Trajectory] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.frame_times)
+
+    def frames(self) -> Iterator[Frame]:
+        """Frames in time order, images decoded one at a time."""
+        if self.load_frames is None:
+            return iter(())
+        return self.load_frames()
+
+    def telemetry(self) -> Iterator[TelemetryRecord]:
+        """All non-image samples merged in time order."""
+        streams = [self.imu, self.gps, self.baro, self.wheel, self.wifi]
+        return heapq.merge(*streams, key=lambda record: record.timestamp)
+
+    def stream(self) -> Iterator[Frame | TelemetryRecord]:
+        """Frames and telemetry merged in time order (what a live source would deliver)."""
+        return heapq.merge(self.frames(), self.telemetry(), key=lambda record: record.timestamp)
+
+    def sensors(self) -> dict[str, int]:
+        """Sample count per sensor present."""
+        counts = {"camera": self.num_frames, "imu": len(self.imu), "gps": len(self.gps), "baro": len(self.baro), "wheel": len(self.wheel), "wifi": len(self.wifi)}
+        return {name: count for name, count in counts.items() if count}
+
+
+def load_image(path: Path) -> np.ndarray:
+    """Decode an image file as stored (grey stays grey), naming the file when it is unreadable."""
+    data = np.fromfile(str(path), dtype=np.uint8) if path.is_file() else None
+    if data is None:
+        raise DatasetError(path, "image file is missing")
+    image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    if image is None:
+        raise DatasetError(path, "image cannot be decoded (empty or corrupt file)")
+    if image.dtype != np.uint8:
+        image = cv2.convertScaleAbs(image, alpha=255.0 / max(1.0, float(image.max())))
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
+    return image
+
+
+def image_file_frames(times: np.ndarray, paths: list[Path]) -> Callable[[], Iterator[Frame]]:
+    """A frame loader over image files with known timestamps."""
+
+    def load() -> Iterator[Frame]:
+        for index, (stamp, path) in enumerate(zip(times, paths)):
+            yield Frame(float(stamp), load_image(path), index, str(path))
+
+    return load
+
+
+def check_increasing(path: Path, stamps: np.ndarray, what: str, first_line: int = 1) -> None:
+    """Raise naming the first line whose timestamp does not increase."""
+    bad = np.flatnonzero(np.diff(stamps) <= 0)
+    if len(bad):
+        raise DatasetError(path, f"{what} timestamps must increase ({stamps[bad[0] + 1]!r} after {stamps[bad[0]]!r})", line=first_line + int(bad[0]) + 1)
+
+
+def image_size(path: Path) -> tuple[int, int]:
+    """(width, height) of an image file."""
+    image = load_image(path)
+    return image.shape[1], image.shape[0]

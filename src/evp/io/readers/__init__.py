@@ -1,0 +1,23 @@
+"""The dataset readers EVP knows, in detection order (most specific first)."""
+
+from evp.io.readers.comma2k19 import Comma2k19Reader
+from evp.io.readers.euroc import EurocReader
+from evp.io.readers.exif_photos import ExifPhotoReader
+from evp.io.readers.image_folder import ImageFolderReader
+from evp.io.readers.kitti import KittiReader
+from evp.io.readers.rosbag import RosbagReader
+from evp.io.readers.trajectory_files import TrajectoryFilesReader
+from evp.io.readers.tum_rgbd import TumRgbdReader
+from evp.io.readers.video import VideoReader
+
+READERS = (
+    EurocReader(),
+    TumRgbdReader(),
+    KittiReader(),
+    Comma2k19Reader(),
+    RosbagReader(),
+    VideoReader(),
+    ImageFolderReader(),
+    ExifPhotoReader(),
+    TrajectoryFilesReader(),
+)

@@ -1,0 +1,77 @@
+"""Small numeric text tables (CSV or whitespace separated) with line-exact error messages."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from evp.errors import DatasetError
+
+
+def read_table(path: Path, columns: int | None = None, min_columns: int = 1, delimiter: str | None = None, header: bool | None = None) -> tuple[np.ndarray, list[int], list[str]]:
+    """Numeric rows of a text table.
+
+    Lines starting with ``#`` are comments; a first line that is not numeric is a header when
+    ``header`` is None. Returns (values, 1-based line numbers, header fields).
+    """
+    if not path.is_file():
+        raise DatasetError(path, "file not found")
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DatasetError(path, f"cannot be read as text: {exc}") from exc
+    rows: list[list[float]] = []
+    numbers: list[int] = []
+    names: list[str] = []
+    for number, raw in enumerate(text.splitlines(), start=1):
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        sep = delimiter if delimiter is not None else ("," if "," in line else None)
+        fields = [f.strip() for f in line.split(sep)]
+        try:
+            values = [float(f) for f in fields]
+        except ValueError as exc:
+            if not rows and not names and header is not False:
+                names = fields
+                continue
+            raise DatasetError(path, f"not a number: {exc}", line=number) from exc
+        if columns is not None and len(values) != columns:
+            raise DatasetError(path, f"expected {columns} values, found {len(values)}", line=number)
+        if len(values) < min_columns:
+            raise DatasetError(path, f"expected at least {min_columns} values, found {len(values)}", line=number)
+        if rows and len(values) != len(rows[0]):
+            raise DatasetError(path, f"expected {len(rows[0])} values like the first row, found {len(values)}", line=number)
+        rows.append(values)
+        numbers.append(number)
+    if not rows:
+        raise DatasetError(path, "no data rows")
+    return np.array(rows, dtype=float), numbers, names
+
+
+def read_named_lines(path: Path) -> tuple[np.ndarray, list[str], list[int]]:
+    """Lines of ``timestamp name`` pairs (TUM rgb.txt, RPG images.txt, EuRoC data.csv)."""
+    if not path.is_file():
+        raise DatasetError(path, "file not found")
+    stamps: list[float] = []
+    names: list[str] = []
+    numbers: list[int] = []
+    for number, raw in enumerate(path.read_text().splitlines(), start=1):
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        fields = [f.strip() for f in (line.split(",") if "," in line else line.split())]
+        if len(fields) < 2:
+            raise DatasetError(path, "expected 'timestamp filename'", line=number)
+        try:
+            stamps.append(float(fields[0]))
+        except ValueError as exc:
+            if not stamps:
+                continue  # header line
+            raise DatasetError(path, f"bad timestamp: {exc}", line=number) from exc
+        names.append(fields[1])
+        numbers.append(number)
+    if not stamps:
+        raise DatasetError(path, "no entries")
+    return np.array(stamps), names, numbers

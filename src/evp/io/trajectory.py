@@ -1,0 +1,235 @@
+"""Trajectories and their file formats: TUM, KITTI, EuRoC ground-truth CSV and EVP CSV.
+
+Formats are recognised from the content, not the file name:
+
+* TUM: ``timestamp tx ty tz qx qy qz qw`` (space separated, quaternion scalar last)
+* KITTI: 12 numbers, the row-major 3x4 ``[R|t]``; a 13th leading number is a frame index,
+  kept as the pose's timestamp so that such files match ground truth by frame
+* EuRoC: ``timestamp_ns, px, py, pz, qw, qx, qy, qz, ...`` (comma separated, scalar first)
+* EVP CSV: header ``timestamp,tx,ty,tz,qx,qy,qz,qw``
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from evp.errors import TrajectoryFormatError
+from evp.geometry.transforms import poses_from_xyz_quat, quat_xyzw_from_matrices
+
+
+class TrajectoryFormat(enum.Enum):
+    TUM = "tum"
+    KITTI = "kitti"
+    EUROC = "euroc"
+    CSV = "csv"
+
+
+CSV_HEADER = "timestamp,tx,ty,tz,qx,qy,qz,qw"
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """N poses of a sensor in a world frame; ``timestamps`` is None for KITTI files without times."""
+
+    positions: np.ndarray  # (N, 3) metres
+    quats_xyzw: np.ndarray  # (N, 4) Hamilton, scalar last, unit norm
+    timestamps: np.ndarray | None = None  # (N,) seconds
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        n = len(self.positions)
+        if self.positions.shape != (n, 3) or self.quats_xyzw.shape != (n, 4):
+            raise ValueError("positions must be (N, 3) and quaternions (N, 4)")
+        if self.timestamps is not None and self.timestamps.shape != (n,):
+            raise ValueError("timestamps must be (N,)")
+
+    @staticmethod
+    def from_poses(poses: np.ndarray, timestamps: np.ndarray | None = None, name: str = "") -> "Trajectory":
+        """From a stack of 4x4 poses."""
+        poses = np.asarray(poses, dtype=float).reshape(-1, 4, 4)
+        stamps = None if timestamps is None else np.asarray(timestamps, dtype=float)
+        return Trajectory(poses[:, :3, 3].copy(), quat_xyzw_from_matrices(poses[:, :3, :3]), stamps, name)
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+    @property
+    def poses(self) -> np.ndarray:
+        """(N, 4, 4) camera-to-world transforms."""
+        return poses_from_xyz_quat(self.positions, self.quats_xyzw)
+
+    @property
+    def path_length(self) -> float:
+        """Sum of the distances between consecutive positions (metres)."""
+        if len(self) < 2:
+            return 0.0
+        return float(np.sum(np.linalg.norm(np.diff(self.positions, axis=0), axis=1)))
+
+    @property
+    def duration(self) -> float:
+        if self.timestamps is None or len(self) < 2:
+            return 0.0
+        return float(self.timestamps[-1] - self.timestamps[0])
+
+    def select(self, indices: np.ndarray) -> "Trajectory":
+        """The poses at the given indices (or boolean mask)."""
+        stamps = None if self.timestamps is None else self.timestamps[indices]
+        return Trajectory(self.positions[indices], self.quats_xyzw[indices], stamps, self.name)
+
+    def with_timestamps(self, timestamps: np.ndarray) -> "Trajectory":
+        stamps = np.asarray(timestamps, dtype=float)
+        if len(stamps) != len(self):
+            raise ValueError(f"{len(stamps)} timestamps for {len(self)} poses")
+        return Trajectory(self.positions, self.quats_xyzw, stamps, self.name)
+
+
+def _data_lines(path: Path) -> list[tuple[int, str]]:
+    """(1-based line number, text) of the non-empty, non-comment lines of a file."""
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError as exc:
+        raise TrajectoryFormatError(path, f"not a text file ({exc.reason})") from exc
+    except OSError as exc:
+        raise TrajectoryFormatError(path, f"cannot be read: {exc.strerror}") from exc
+    lines = []
+    for number, raw in enumerate(text.splitlines(), start=1):
+        stripped = raw.strip()
+        if stripped and not stripped.startswith("#") and not stripped.startswith("%"):
+            lines.append((number, stripped))
+    return lines
+
+
+def _parse_rows(path: Path, lines: list[tuple[int, str]], separator: str | None, columns: set[int]) -> np.ndarray:
+    """Parse numeric rows, each with one of the allowed column counts, naming the bad line."""
+    rows = []
+    width = None
+    for number, text in lines:
+        fields = [f for f in (text.split(separator) if separator else text.split()) if f.strip() != ""]
+        if width is None:
+            width = len(fields)
+            if width not in columns:
+                raise TrajectoryFormatError(path, f"expected {' or '.join(map(str, sorted(columns)))} values, found {width}", line=number)
+        elif len(fields) != width:
+            raise TrajectoryFormatError(path, f"expected {width} values like the first row, found {len(fields)}", line=number)
+        try:
+            values = [float(f) for f in fields]
+        except ValueError as exc:
+            raise TrajectoryFormatError(path, f"not a number: {exc}", line=number) from exc
+        if not np.all(np.isfinite(values)):
+            raise TrajectoryFormatError(path, "NaN or infinite value", line=number)
+        rows.append(values)
+    if not rows:
+        raise TrajectoryFormatError(path, "no poses in file")
+    return np.array(rows, dtype=float)
+
+
+def detect_trajectory_format(path: Path) -> TrajectoryFormat:
+    """Recognise the format of a trajectory file from its first data line."""
+    path = Path(path)
+    lines = _data_lines(path)
+    if not lines:
+        raise TrajectoryFormatError(path, "no poses in file")
+    number, first = lines[0]
+    if first.replace(" ", "").lower().startswith(CSV_HEADER):
+        return TrajectoryFormat.CSV
+    if "," in first:
+        return TrajectoryFormat.EUROC
+    count = len(first.split())
+    if count == 8:
+        return TrajectoryFormat.TUM
+    if count in (12, 13):
+        return TrajectoryFormat.KITTI
+    raise TrajectoryFormatError(path, f"unrecognised trajectory format: {count} values per line (TUM has 8, KITTI 12)", line=number)
+
+
+def _check_quaternions(path: Path, lines: list[tuple[int, str]], quats: np.ndarray) -> np.ndarray:
+    norms = np.linalg.norm(quats, axis=1)
+    bad = np.flatnonzero(np.abs(norms - 1.0) > 0.1)
+    if len(bad):
+        raise TrajectoryFormatError(path, f"quaternion norm {norms[bad[0]]:.3f} is not 1", line=lines[bad[0]][0])
+    return quats / norms[:, None]
+
+
+def _check_monotonic(path: Path, lines: list[tuple[int, str]], stamps: np.ndarray) -> None:
+    back = np.flatnonzero(np.diff(stamps) < 0)
+    if len(back):
+        raise TrajectoryFormatError(path, "timestamps go backwards", line=lines[back[0] + 1][0])
+
+
+def read_trajectory(path: str | Path, fmt: TrajectoryFormat | None = None) -> Trajectory:
+    """Read a trajectory file, detecting its format unless given."""
+    path = Path(path)
+    fmt = fmt or detect_trajectory_format(path)
+    lines = _data_lines(path)
+    name = path.stem
+    if fmt is TrajectoryFormat.TUM:
+        rows = _parse_rows(path, lines, None, {8})
+        _check_monotonic(path, lines, rows[:, 0])
+        return Trajectory(rows[:, 1:4], _check_quaternions(path, lines, rows[:, 4:8]), rows[:, 0], name)
+    if fmt is TrajectoryFormat.CSV:
+        rows = _parse_rows(path, lines[1:], ",", {8})
+        _check_monotonic(path, lines[1:], rows[:, 0])
+        return Trajectory(rows[:, 1:4], _check_quaternions(path, lines[1:], rows[:, 4:8]), rows[:, 0], name)
+    if fmt is TrajectoryFormat.EUROC:
+        rows = _parse_rows(path, lines, ",", set(range(8, 40)))
+        stamps = rows[:, 0] / 1e9
+        _check_monotonic(path, lines, stamps)
+        quats = _check_quaternions(path, lines, rows[:, [5, 6, 7, 4]])
+        return Trajectory(rows[:, 1:4], quats, stamps, name)
+    rows = _parse_rows(path, lines, None, {12, 13})
+    matrices = rows[:, -12:].reshape(-1, 3, 4)
+    det = np.linalg.det(matrices[:, :, :3])
+    bad = np.flatnonzero(np.abs(det - 1.0) > 0.05)
+    if len(bad):
+        raise TrajectoryFormatError(path, f"rotation part has determinant {det[bad[0]]:.3f}, not 1", line=lines[bad[0]][0])
+    poses = np.tile(np.eye(4), (len(rows), 1, 1))
+    poses[:, :3, :] = matrices
+    frame_index = rows[:, 0] if rows.shape[1] == 13 else None  # kitti-odom-eval's leading frame index
+    return Trajectory.from_poses(poses, frame_index, name)
+
+
+def read_timestamps(path: str | Path) -> np.ndarray:
+    """One time in seconds per line (KITTI ``times.txt``)."""
+    path = Path(path)
+    lines = _data_lines(path)
+    return _parse_rows(path, lines, None, {1})[:, 0]
+
+
+def _num(value: float) -> str:
+    """Shortest text that reads back as exactly the same float64."""
+    return repr(float(value))
+
+
+def write_tum(path: str | Path, trajectory: Trajectory) -> None:
+    """TUM format at full float64 precision (needs timestamps)."""
+    if trajectory.timestamps is None:
+        raise ValueError("TUM files need timestamps; this trajectory has none")
+    rows = np.column_stack([trajectory.timestamps, trajectory.positions, trajectory.quats_xyzw])
+    text = "".join(" ".join(_num(v) for v in row) + "\n" for row in rows)
+    Path(path).write_text("# timestamp tx ty tz qx qy qz qw\n" + text)
+
+
+def write_kitti(path: str | Path, trajectory: Trajectory) -> None:
+    """KITTI format: 12 numbers per pose, row-major 3x4 ``[R|t]``; timestamps are not kept."""
+    poses = trajectory.poses[:, :3, :].reshape(-1, 12)
+    Path(path).write_text("".join(" ".join(_num(v) for v in row) + "\n" for row in poses))
+
+
+def write_csv(path: str | Path, trajectory: Trajectory) -> None:
+    """CSV with a header; a trajectory without timestamps gets its pose index as time."""
+    stamps = trajectory.timestamps if trajectory.timestamps is not None else np.arange(len(trajectory), dtype=float)
+    rows = np.column_stack([stamps, trajectory.positions, trajectory.quats_xyzw])
+    Path(path).write_text(CSV_HEADER + "\n" + "".join(",".join(_num(v) for v in row) + "\n" for row in rows))
+
+
+WRITERS = {TrajectoryFormat.TUM: write_tum, TrajectoryFormat.KITTI: write_kitti, TrajectoryFormat.CSV: write_csv}
+
+
+def write_trajectory(path: str | Path, trajectory: Trajectory, fmt: TrajectoryFormat = TrajectoryFormat.TUM) -> None:
+    if fmt not in WRITERS:
+        raise ValueError(f"cannot write {fmt.value} trajectories; choose one of {[f.value for f in WRITERS]}")
+    WRITERS[fmt](path, trajectory)

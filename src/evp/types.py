@@ -1,0 +1,216 @@
+"""Core records that flow through EVP: sensor samples in, pose estimates out, and the camera model.
+
+Every record is a frozen dataclass whose first field is ``timestamp`` in seconds (float64) on the
+sensor's own clock. Units are SI and frames are named in the field names: ``T_world_cam`` is the
+pose of the camera optical frame (x right, y down, z forward) in the world frame.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field, replace
+
+import cv2
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One camera image. ``image`` is HxW (grey) or HxWx3 (BGR) uint8."""
+
+    timestamp: float
+    image: np.ndarray
+    index: int = 0
+    source: str = ""
+
+
+@dataclass(frozen=True)
+class ImuSample:
+    """Gyro (rad/s) and specific force (m/s^2) in the IMU frame."""
+
+    timestamp: float
+    angular_velocity_rad_s: tuple[float, float, float]
+    linear_acceleration_m_s2: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class GpsFix:
+    """WGS-84 fix; accuracies are 1-sigma in metres (NaN when the receiver gives none)."""
+
+    timestamp: float
+    latitude_deg: float
+    longitude_deg: float
+    altitude_m: float
+    horizontal_accuracy_m: float = float("nan")
+    vertical_accuracy_m: float = float("nan")
+
+
+@dataclass(frozen=True)
+class BaroSample:
+    """Static pressure in pascals and, when the device gives it, its altitude estimate."""
+
+    timestamp: float
+    pressure_pa: float
+    altitude_m: float = float("nan")
+
+
+@dataclass(frozen=True)
+class WheelOdometry:
+    """Wheel speeds (m/s, one per wheel) and, when known, body forward speed and yaw rate."""
+
+    timestamp: float
+    wheel_speeds_m_s: tuple[float, ...]
+    forward_speed_m_s: float = float("nan")
+    yaw_rate_rad_s: float = float("nan")
+
+
+@dataclass(frozen=True)
+class WifiScan:
+    """Received signal strength (dBm) per access point (BSSID)."""
+
+    timestamp: float
+    rssi_dbm: dict[str, float] = field(default_factory=dict)
+
+
+class TrackingState(enum.Enum):
+    NOT_INITIALIZED = "NOT_INITIALIZED"
+    OK = "OK"
+    LOST = "LOST"
+    RELOCALIZED = "RELOCALIZED"
+
+
+@dataclass(frozen=True)
+class PoseEstimate:
+    """An estimator's answer for one frame.
+
+    ``T_world_cam`` is 4x4 (camera-to-world). ``quality`` is 0..100 (MAVLink convention).
+    ``covariance`` is 6x6 over (x, y, z, roll, pitch, yaw) in the world frame, when known.
+    """
+
+    timestamp: float
+    T_world_cam: np.ndarray
+    tracking_state: TrackingState
+    quality: int = 0
+    covariance: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """Pinhole camera with OpenCV radial-tangential distortion (k1, k2, p1, p2, k3).
+
+    Pixel coordinates follow OpenCV: the centre of the top-left pixel is (0, 0).
+    """
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    k1: float = 0.0
+    k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    k3: float = 0.0
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"camera resolution must be positive, got {self.width}x{self.height}")
+        if not (self.fx > 0 and self.fy > 0):
+            raise ValueError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+        values = (self.cx, self.cy, self.k1, self.k2, self.p1, self.p2, self.k3)
+        if not all(np.isfinite(values)):
+            raise ValueError("camera parameters must be finite numbers")
+
+    @property
+    def K(self) -> np.ndarray:
+        """3x3 intrinsic matrix."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def distortion(self) -> np.ndarray:
+        """OpenCV distortion vector (k1, k2, p1, p2, k3)."""
+        return np.array([self.k1, self.k2, self.p1, self.p2, self.k3])
+
+    @property
+    def has_distortion(self) -> bool:
+        return bool(np.any(self.distortion != 0.0))
+
+    def distort_normalized(self, xy: np.ndarray) -> np.ndarray:
+        """Apply the lens model to (N, 2) normalised image coordinates (z = 1 plane)."""
+        x, y = xy[:, 0], xy[:, 1]
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        xd = x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y
+        return np.stack([xd, yd], axis=1)
+
+    def project(self, points_cam: np.ndarray) -> np.ndarray:
+        """Pixel coordinates (N, 2) of (N, 3) points in the camera frame (must have z > 0)."""
+        points_cam = np.atleast_2d(np.asarray(points_cam, dtype=float))
+        xy = points_cam[:, :2] / points_cam[:, 2:3]
+        xy = self.distort_normalized(xy)
+        return np.stack([self.fx * xy[:, 0] + self.cx, self.fy * xy[:, 1] + self.cy], axis=1)
+
+    def undistort_points(self, pixels: np.ndarray, iterations: int = 20) -> np.ndarray:
+        """Normalised undistorted coordinates (N, 2) of (N, 2) distorted pixel coordinates.
+
+        Inverts the lens model by Newton's method with the analytic Jacobian (vectorised), which
+        converges to machine precision in a few steps even for strong barrel distortion.
+        """
+        pixels = np.atleast_2d(np.asarray(pixels, dtype=float))
+        target = np.stack([(pixels[:, 0] - self.cx) / self.fx, (pixels[:, 1] - self.cy) / self.fy], axis=1)
+        if not self.has_distortion:
+            return target
+        xy = target.copy()
+        for _ in range(iterations):
+            x, y = xy[:, 0], xy[:, 1]
+            r2 = x * x + y * y
+            radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+            d_radial = self.k1 + r2 * (2.0 * self.k2 + 3.0 * self.k3 * r2)  # d(radial)/d(r2)
+            residual = self.distort_normalized(xy) - target
+            j11 = radial + 2.0 * x * x * d_radial + 2.0 * self.p1 * y + 6.0 * self.p2 * x
+            j12 = 2.0 * x * y * d_radial + 2.0 * self.p1 * x + 2.0 * self.p2 * y
+            j21 = 2.0 * x * y * d_radial + 2.0 * self.p1 * x + 2.0 * self.p2 * y
+            j22 = radial + 2.0 * y * y * d_radial + 6.0 * self.p1 * y + 2.0 * self.p2 * x
+            det = j11 * j22 - j12 * j21
+            step_x = (j22 * residual[:, 0] - j12 * residual[:, 1]) / det
+            step_y = (j11 * residual[:, 1] - j21 * residual[:, 0]) / det
+            xy[:, 0] -= step_x
+            xy[:, 1] -= step_y
+            if np.max(np.abs(residual)) < 1e-15:
+                break
+        return xy
+
+    def undistort_pixels(self, pixels: np.ndarray) -> np.ndarray:
+        """Where (N, 2) distorted pixels would lie in an ideal pinhole image with the same K."""
+        xy = self.undistort_points(pixels)
+        return np.stack([self.fx * xy[:, 0] + self.cx, self.fy * xy[:, 1] + self.cy], axis=1)
+
+    def unproject(self, pixels: np.ndarray, depth: np.ndarray | float = 1.0) -> np.ndarray:
+        """3-D points (N, 3) in the camera frame at the given depth (z) behind (N, 2) pixels."""
+        xy = self.undistort_points(pixels)
+        depth = np.broadcast_to(np.asarray(depth, dtype=float), (len(xy),))
+        return np.stack([xy[:, 0] * depth, xy[:, 1] * depth, depth], axis=1)
+
+    def scaled(self, width: int, height: int) -> "CameraModel":
+        """The same lens at another resolution (same field of view; distortion is unit-free).
+
+        Uses the pixel-centre convention: a pixel edge at 0 stays at 0, so c' = (c + 0.5) s - 0.5.
+        """
+        sx = width / self.width
+        sy = height / self.height
+        return replace(
+            self,
+            width=width,
+            height=height,
+            fx=self.fx * sx,
+            fy=self.fy * sy,
+            cx=(self.cx + 0.5) * sx - 0.5,
+            cy=(self.cy + 0.5) * sy - 0.5,
+        )
+
+    def undistort_image(self, image: np.ndarray) -> np.ndarray:
+        """The image resampled to an ideal pinhole camera with the same K."""
+        return cv2.undistort(image, self.K, self.distortion)

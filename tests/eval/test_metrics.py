@@ -33,10 +33,15 @@ def test_umeyama_recovers_a_known_similarity():
     assert found.scale == pytest.approx(2.5, abs=1e-12)
 
 
-def test_umeyama_rejects_degenerate_points():
+def test_umeyama_on_collinear_points_is_flagged_but_still_fits():
     line = np.column_stack([np.arange(10.0), np.zeros(10), np.zeros(10)])
-    with pytest.raises(EvaluationError, match="degenerate"):
-        umeyama(line, line, with_scale=True)
+    target = 2.0 * line[:, [1, 0, 2]] + [1.0, 2.0, 3.0]  # the line turned onto the y axis, scaled
+    found = umeyama(line, target, with_scale=True)
+    assert found.degenerate
+    assert found.scale == pytest.approx(2.0)
+    assert np.allclose(found.apply(line), target, atol=1e-12)
+    with pytest.raises(EvaluationError, match="coincide"):
+        umeyama(np.ones((5, 3)), np.ones((5, 3)), with_scale=True)
 
 
 @pytest.mark.parametrize("mode", [Alignment.SE3, Alignment.SIM3])

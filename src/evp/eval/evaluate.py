@@ -78,6 +78,7 @@ class EvaluationResult:
             "scale": self.alignment.scale,
             "rotation": self.alignment.rotation.tolist(),
             "translation": self.alignment.translation.tolist(),
+            "degenerate": self.alignment.degenerate,
         }
         out["reference_path_length_m"] = self.ref.path_length
         return out

@@ -18,6 +18,7 @@ def markdown_summary(result: EvaluationResult, ref_name: str, est_name: str) -> 
         "",
         f"- matched poses: {summary['matched_poses']} (max time difference {result.options.max_diff_s} s, offset {result.options.offset_s} s)",
         f"- alignment: {result.options.align.value}" + (f" on the first {result.options.n_align} poses" if result.options.n_align else "") + f", scale {result.alignment.scale:.6g}",
+        *(["- alignment is degenerate (collinear positions): the rotation about that line is not observable"] if result.alignment.degenerate else []),
         f"- reference path length: {summary['reference_path_length_m']:.3f} m",
         f"- XY RMSE: {summary['xy_rmse']:.6g} m",
         "",

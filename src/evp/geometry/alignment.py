@@ -16,6 +16,7 @@ class Similarity:
     rotation: np.ndarray
     translation: np.ndarray
     scale: float = 1.0
+    degenerate: bool = False  # points (nearly) collinear: the rotation about their line is arbitrary
 
     def apply(self, points: np.ndarray) -> np.ndarray:
         """Transform an (N, d) array of points."""
@@ -36,8 +37,10 @@ class Similarity:
 def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool) -> Similarity:
     """Similarity (or rigid when ``with_scale`` is False) that best maps ``source`` onto ``target``.
 
-    Both are (N, d) arrays of corresponding points. Raises :class:`EvaluationError` when the
-    points are too few or degenerate (e.g. all on one line) to fix a rotation.
+    Both are (N, d) arrays of corresponding points. Points on one line (a slider, a straight
+    drive) leave the rotation about that line free: evo refuses them, we return one of the equally
+    good least-squares solutions and flag it ``degenerate``. Raises :class:`EvaluationError` when
+    the points are too few or all coincide.
     """
     source = np.asarray(source, dtype=float)
     target = np.asarray(target, dtype=float)
@@ -53,12 +56,13 @@ def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool) -> Similar
     variance_s = np.sum(centred_s**2) / n
     covariance = centred_t.T @ centred_s / n
     u, d, vt = np.linalg.svd(covariance)
-    if np.count_nonzero(d > np.finfo(d.dtype).eps) < dim - 1:
-        raise EvaluationError("alignment is degenerate: the points do not span enough dimensions (rank-deficient covariance)")
+    rank = np.count_nonzero(d > np.finfo(d.dtype).eps)
+    if rank == 0 or variance_s == 0.0:
+        raise EvaluationError("alignment is impossible: the estimated positions all coincide")
     s = np.eye(dim)
     if np.linalg.det(u) * np.linalg.det(vt) < 0.0:
         s[-1, -1] = -1.0
     rotation = u @ s @ vt
     scale = float(np.trace(np.diag(d) @ s) / variance_s) if with_scale else 1.0
     translation = mean_t - scale * rotation @ mean_s
-    return Similarity(rotation, translation, scale)
+    return Similarity(rotation, translation, scale, degenerate=bool(rank < dim - 1))

@@ -91,11 +91,13 @@ def image_file_frames(times: np.ndarray, paths: list[Path]) -> Callable[[], Iter
     return load
 
 
-def check_increasing(path: Path, stamps: np.ndarray, what: str, first_line: int = 1) -> None:
-    """Raise naming the first line whose timestamp does not increase."""
+def check_increasing(path: Path, stamps: np.ndarray, what: str, line_numbers: list[int] | None = None) -> None:
+    """Raise naming the first line whose timestamp does not increase (``line_numbers[i]`` is row i's line)."""
     bad = np.flatnonzero(np.diff(stamps) <= 0)
     if len(bad):
-        raise DatasetError(path, f"{what} timestamps must increase ({stamps[bad[0] + 1]!r} after {stamps[bad[0]]!r})", line=first_line + int(bad[0]) + 1)
+        row = int(bad[0]) + 1
+        line = line_numbers[row] if line_numbers is not None else row + 1
+        raise DatasetError(path, f"{what} timestamps must increase ({float(stamps[row])!r} after {float(stamps[row - 1])!r})", line=line)
 
 
 def image_size(path: Path) -> tuple[int, int]:

@@ -39,7 +39,7 @@ class EurocReader:
         cam_dir = mav0 / "cam0"
         stamps_ns, names, lines = read_named_lines(cam_dir / "data.csv")
         times = stamps_ns / 1e9
-        check_increasing(cam_dir / "data.csv", times, "image", first_line=lines[0] - 1)
+        check_increasing(cam_dir / "data.csv", times, "image", lines)
         paths = [cam_dir / "data" / name for name in names]
         missing = [p for p in paths if not p.is_file()]
         if missing:

@@ -43,16 +43,15 @@ class ImageFolderReader:
         stamp_file = next((path / n for n in NAMED_STAMP_FILES if (path / n).is_file()), None)
         if stamp_file is not None:
             stamps, names, lines = read_named_lines(stamp_file)
-            first_line = lines[0]
             paths = [path / name for name in names]
         else:
             stamp_file = path / "times.txt"
             paths = sorted(p for p in _image_dir(path).iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
             stamps = read_timestamps(stamp_file)
-            first_line = 1
+            lines = None
             if len(stamps) != len(paths):
                 raise DatasetError(stamp_file, f"{len(stamps)} times for {len(paths)} images")
-        check_increasing(stamp_file, stamps, "image", first_line)
+        check_increasing(stamp_file, stamps, "image", lines)
         missing = [p for p in paths if not p.is_file()]
         if missing:
             raise DatasetError(stamp_file, f"{len(missing)} listed images are missing, first {missing[0].name}")

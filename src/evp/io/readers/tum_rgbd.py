@@ -45,7 +45,7 @@ class TumRgbdReader:
 
     def read(self, path: Path) -> Dataset:
         stamps, names, lines = read_named_lines(path / "rgb.txt")
-        check_increasing(path / "rgb.txt", stamps, "image", first_line=lines[0])
+        check_increasing(path / "rgb.txt", stamps, "image", lines)
         paths = [path / name for name in names]
         if not paths[0].is_file():
             raise DatasetError(path / "rgb.txt", f"image {names[0]} not found", line=lines[0])

@@ -18,6 +18,8 @@ Examples:
 
   evp info data/sample/davis_slider_depth        what a dataset holds
 
+  evp run data/sample/davis_slider_depth --out runs/sample    trajectory + metrics + plots
+
   evp eval groundtruth.txt estimate.txt --align sim3 --json metrics.json --report report/
 
   evp calibrate board_images/ --pattern chessboard --cols 9 --rows 7 --square 0.025 --out camera.yaml
@@ -59,6 +61,40 @@ def info(
 
     summary = summarise(open_dataset(path, fmt))
     typer.echo(json.dumps(summary, indent=2) if as_json else describe(summary))
+
+
+@app.command()
+def run(
+    dataset_path: Path = typer.Argument(..., metavar="DATASET", help="Dataset folder or file (format auto-detected)."),
+    out: Path = typer.Option(..., "--out", help="Folder for trajectory.tum, metrics.json, plots, settings."),
+    config: Optional[Path] = typer.Option(None, "--config", help="Settings YAML (EVP layout or ORB-SLAM settings)."),
+    fmt: Optional[str] = typer.Option(None, "--format", help="Reader name, to skip auto-detection."),
+) -> None:
+    """Estimate the camera trajectory of a dataset and evaluate it when ground truth exists."""
+    from rich.progress import Progress
+
+    from evp.config import load_settings
+    from evp.io.registry import open_dataset
+    from evp.pipeline import run_dataset, write_outputs
+    from evp.run_setup import camera_for, make_estimator
+
+    settings = load_settings(config)
+    dataset = open_dataset(dataset_path, fmt)
+    if dataset.num_frames == 0:
+        raise EvpError(f"{dataset_path}: no camera frames to run on ({dataset.format})")
+    estimator = make_estimator(camera_for(dataset, settings), settings)
+    with Progress(transient=True) as progress:
+        task = progress.add_task(f"{dataset.name}", total=dataset.num_frames)
+        result = run_dataset(dataset, estimator, lambda n: progress.advance(task, n))
+    metrics = write_outputs(result, dataset, settings, out)
+    typer.echo(f"{dataset.name}: tracked {metrics['tracked_frames']}/{metrics['frames']} frames "
+               f"({100 * metrics['tracked_fraction']:.1f} %), first tracked frame {metrics['init_frame']}")
+    if "rmse" in metrics:
+        typer.echo(f"ATE (Sim3-aligned RMSE) {metrics['rmse']:.4f} m over {metrics['matched_poses']} poses; "
+                   f"ground-truth path {metrics['reference_path_length_m']:.2f} m")
+    for reason in metrics["skipped"]:
+        typer.echo(f"skipped: {reason}", err=True)
+    typer.echo(f"results in {out}")
 
 
 @app.command()

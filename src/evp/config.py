@@ -46,9 +46,26 @@ class EvalSettings(_Section):
     rpe_unit: Literal["frames", "m"] = "frames"
 
 
+class VoSettings(_Section):
+    """The light keyframe visual odometry (``evp.vo.klt_vo``)."""
+
+    max_features: int = Field(600, ge=50, description="corners kept per keyframe")
+    min_feature_distance_px: float = Field(8.0, gt=0)
+    init_min_parallax_px: float = Field(12.0, gt=0, description="median KLT displacement needed to initialise")
+    init_min_points: int = Field(60, ge=8)
+    min_tracked_points: int = Field(25, ge=6, description="fewer PnP inliers than this: tracking is lost")
+    keyframe_parallax_px: float = Field(25.0, gt=0, description="median displacement since the keyframe that makes a new one")
+    keyframe_min_map_ratio: float = Field(0.6, gt=0, lt=1, description="keyframe when fewer of its 3-D points are still tracked")
+    ransac_threshold_px: float = Field(1.0, gt=0)
+    min_triangulation_angle_deg: float = Field(1.0, gt=0)
+    init_min_angle_deg: float = Field(1.5, gt=0, description="median ray angle the initial map needs")
+    max_step_depth_ratio: float = Field(0.5, gt=0, description="largest frame-to-frame step, in median scene depths")
+
+
 class Settings(_Section):
     orb: OrbSettings = OrbSettings()
     camera: CameraSettings = CameraSettings()
+    vo: VoSettings = VoSettings()
     eval: EvalSettings = EvalSettings()
 
 

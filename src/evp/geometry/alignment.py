@@ -47,6 +47,8 @@ def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool) -> Similar
     if source.shape != target.shape or source.ndim != 2:
         raise EvaluationError(f"alignment needs two (N, d) arrays of equal shape, got {source.shape} and {target.shape}")
     n, dim = source.shape
+    if not (np.isfinite(source).all() and np.isfinite(target).all()):
+        raise EvaluationError("alignment needs finite positions (NaN or infinite values found)")
     if n < 2:
         raise EvaluationError(f"alignment needs at least 2 corresponding points, got {n}")
     mean_s = source.mean(axis=0)

@@ -30,7 +30,7 @@ class Dataset:
     root: Path
     camera: CameraModel | None = None
     frame_times: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    load_frames: Callable[[], Iterator[Frame]] | None = None
+    load_frames: Callable[[list[DatasetError] | None], Iterator[Frame]] | None = None
     imu: list[ImuSample] = field(default_factory=list)
     gps: list[GpsFix] = field(default_factory=list)
     baro: list[BaroSample] = field(default_factory=list)
@@ -45,11 +45,15 @@ class Dataset:
     def num_frames(self) -> int:
         return len(self.frame_times)
 
-    def frames(self) -> Iterator[Frame]:
-        """Frames in time order, images decoded one at a time."""
+    def frames(self, errors: list[DatasetError] | None = None) -> Iterator[Frame]:
+        """Frames in time order, images decoded one at a time.
+
+        An undecodable image raises :class:`DatasetError`, unless ``errors`` is a list: then the
+        frame is skipped and its error appended there (a long run loses one frame, not all).
+        """
         if self.load_frames is None:
             return iter(())
-        return self.load_frames()
+        return self.load_frames(errors)
 
     def telemetry(self) -> Iterator[TelemetryRecord]:
         """All non-image samples merged in time order."""
@@ -84,9 +88,16 @@ def load_image(path: Path) -> np.ndarray:
 def image_file_frames(times: np.ndarray, paths: list[Path]) -> Callable[[], Iterator[Frame]]:
     """A frame loader over image files with known timestamps."""
 
-    def load() -> Iterator[Frame]:
+    def load(errors: list[DatasetError] | None = None) -> Iterator[Frame]:
         for index, (stamp, path) in enumerate(zip(times, paths)):
-            yield Frame(float(stamp), load_image(path), index, str(path))
+            try:
+                image = load_image(path)
+            except DatasetError as exc:
+                if errors is None:
+                    raise
+                errors.append(exc)
+                continue
+            yield Frame(float(stamp), image, index, str(path))
 
     return load
 

@@ -92,16 +92,20 @@ class RosbagReader:
             records.sort(key=lambda r: r.timestamp)
         dataset.frame_times = np.array(times)
         if image_topic:
-            dataset.load_frames = lambda: self._frames(path, image_topic)
+            dataset.load_frames = lambda errors=None: self._frames(path, image_topic, errors)
             dataset.notes.append(f"images from {image_topic}")
         if image_topic and dataset.camera is None:
             dataset.notes.append("no CameraInfo topic: no calibration in the bag")
         return dataset
 
     @staticmethod
-    def _frames(path: Path, topic: str) -> Iterator[Frame]:
+    def _frames(path: Path, topic: str, errors: list[DatasetError] | None) -> Iterator[Frame]:
         for index, (connection, msg) in enumerate(_messages(path, IMAGE_TYPES, topic)):
             image = msg_to_image(msg, connection.msgtype)
             if image is None:
-                raise DatasetError(path, f"image message {index} on {topic} cannot be decoded", record=str(index))
+                error = DatasetError(path, f"image message {index} on {topic} cannot be decoded", record=str(index))
+                if errors is None:
+                    raise error
+                errors.append(error)
+                continue
             yield Frame(stamp_seconds(msg.header), image, index, f"{path}:{topic}#{index}")

@@ -29,13 +29,17 @@ def _companion(video: Path, *names: str) -> Path | None:
 
 
 def _video_frames(video: Path, times: np.ndarray):
-    def load() -> Iterator[Frame]:
+    def load(errors: list[DatasetError] | None = None) -> Iterator[Frame]:
         capture = cv2.VideoCapture(str(video))
         try:
             for index, stamp in enumerate(times):
                 ok, image = capture.read()
                 if not ok:
-                    raise DatasetError(video, f"cannot decode frame {index}", record=str(index))
+                    error = DatasetError(video, f"cannot decode frame {index} (the rest of the video is unreadable)", record=str(index))
+                    if errors is None:
+                        raise error
+                    errors.append(error)
+                    return
                 yield Frame(float(stamp), image, index, f"{video}#{index}")
         finally:
             capture.release()

@@ -1,0 +1,29 @@
+"""Choosing the camera model and building the estimator for a run from the settings."""
+
+from __future__ import annotations
+
+from evp.config import Settings
+from evp.errors import CalibrationError
+from evp.estimator import Estimator
+from evp.io.dataset import Dataset
+from evp.types import CameraModel
+
+
+def camera_for(dataset: Dataset, settings: Settings) -> CameraModel:
+    """The settings' calibration file or profile when given, else the dataset's own calibration."""
+    from evp.calib.camera_files import read_camera
+    from evp.calib.profiles import load_profile
+
+    if settings.camera.calibration_file is not None:
+        return read_camera(settings.camera.calibration_file)
+    if settings.camera.profile:
+        return load_profile(settings.camera.profile)
+    if dataset.camera is None:
+        raise CalibrationError(dataset.root, "the dataset has no calibration; give camera.calibration_file or camera.profile in --config")
+    return dataset.camera
+
+
+def make_estimator(camera: CameraModel, settings: Settings) -> Estimator:
+    from evp.vo.klt_vo import KltVisualOdometry
+
+    return KltVisualOdometry(camera, settings.vo)

@@ -1,0 +1,1 @@
+"""Light visual odometry without a persistent map."""

@@ -160,10 +160,8 @@ class KltVisualOdometry:
         if not ok or inliers is None or len(inliers) < s.min_tracked_points:
             return self._lost(frame, grey)
         inliers = inliers.ravel()
-        refined = cv2.solvePnPRefineLM(kf.points_world[with_3d][inliers], self._tracks[with_3d][inliers], self.camera.K, self.camera.distortion, rvec.copy(), tvec.copy())
-        if np.isfinite(np.concatenate(refined)).all():
-            rvec, tvec = refined
-        if not np.isfinite(np.concatenate([rvec, tvec])).all():
+        rvec, tvec = self._refine_pose(kf.points_world[with_3d][inliers], self._tracks[with_3d][inliers], guess, rvec, tvec)
+        if rvec is None:
             return self._lost(frame, grey)
         T_cam_world = se3(cv2.Rodrigues(rvec)[0], tvec.ravel())
         outliers = np.flatnonzero(with_3d)[np.setdiff1d(np.arange(with_3d.sum()), inliers)]
@@ -229,6 +227,25 @@ class KltVisualOdometry:
             err1 = np.linalg.norm(in1[:, :2] / in1[:, 2:3] - x1, axis=1)
         good &= (err0 < threshold) & (err1 < threshold)
         return points, good
+
+    def _refine_pose(self, points: np.ndarray, pixels: np.ndarray, guess_T_cam_world: np.ndarray, rvec: np.ndarray, tvec: np.ndarray):
+        """Levenberg-Marquardt on the RANSAC inliers, started from the motion-model guess.
+
+        OpenCV's RANSAC result varies in the last digits from run to run (its hypotheses are
+        drawn in parallel); starting the refinement from the deterministic guess makes replays
+        identical. The RANSAC pose is the fallback when it fits the inliers better.
+        """
+        K, dist = self.camera.K, self.camera.distortion
+        candidates = []
+        for start_r, start_t in ((cv2.Rodrigues(guess_T_cam_world[:3, :3])[0], guess_T_cam_world[:3, 3].reshape(3, 1)), (rvec, tvec)):
+            r, t = cv2.solvePnPRefineLM(points, pixels, K, dist, start_r.copy(), start_t.copy())
+            if np.isfinite(r).all() and np.isfinite(t).all():
+                projected, _ = cv2.projectPoints(points, r, t, K, dist)
+                candidates.append((float(np.sum((projected.reshape(-1, 2) - pixels) ** 2)), r, t))
+        if not candidates:
+            return None, None
+        best = candidates[0] if candidates[0][0] <= candidates[-1][0] * (1 + 1e-6) else candidates[-1]
+        return best[1], best[2]
 
     @staticmethod
     def _median_angle_deg(points0: np.ndarray, T1_0: np.ndarray) -> float:

@@ -1,0 +1,66 @@
+"""`evp eval` vs evo 1.38 on the shared reference trajectories: agreement and speed in one run.
+
+Usage: python bench/eval_vs_evo.py
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+from pathlib import Path
+
+from evo.core import metrics, sync
+from evo.tools import file_interface
+
+from evp.eval.evaluate import EvaluationOptions, evaluate
+from evp.eval.metrics import Alignment
+from evp.io.trajectory import read_trajectory
+
+ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "reference_trajectories"
+PAIRS = [
+    ("tum_fr1_xyz/groundtruth.txt", "tum_fr1_xyz/est_rgbdslam.txt", "se3"),
+    ("tum_fr2_desk/groundtruth.txt", "tum_fr2_desk/est_orbslam.txt", "sim3"),
+    ("euroc_v1_02/groundtruth_euroc.csv", "euroc_v1_02/est_tum.txt", "se3"),
+    ("euroc_v1_01/groundtruth_body_20hz_tum.txt", "euroc_v1_01/est_openvins_tum.txt", "sim3"),
+]
+
+
+def _evo(ref_path: Path, est_path: Path, align: str) -> dict:
+    read = file_interface.read_euroc_csv_trajectory if ref_path.suffix == ".csv" else file_interface.read_tum_trajectory_file
+    ref, est = sync.associate_trajectories(read(str(ref_path)), file_interface.read_tum_trajectory_file(str(est_path)))
+    est = copy.deepcopy(est)
+    est.align(ref, correct_scale=align == "sim3")
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((ref, est))
+    rpe = metrics.RPE(metrics.PoseRelation.translation_part, 1, metrics.Unit.frames)
+    rpe.process_data((ref, est))
+    return {"ape": ape.get_all_statistics(), "rpe": rpe.get_all_statistics()}
+
+
+def _ours(ref_path: Path, est_path: Path, align: str) -> dict:
+    summary = evaluate(read_trajectory(ref_path), read_trajectory(est_path), EvaluationOptions(Alignment(align))).summary()
+    return {"ape": summary["ape_translation_m"], "rpe": summary["rpe"]["translation_m"]}
+
+
+def _timed(function, *args, repeats: int = 3):
+    best, result = float("inf"), None
+    for _ in range(repeats):
+        start = time.perf_counter()
+        result = function(*args)
+        best = min(best, time.perf_counter() - start)
+    return best, result
+
+
+def main() -> None:
+    print("command: python bench/eval_vs_evo.py   (read + associate + align + APE + RPE, best of 3, same process)\n")
+    print("| reference / estimate | align | APE RMSE (m) | max abs difference vs evo | evp time (s) | evo time (s) | evo / evp |")
+    print("|---|---|---|---|---|---|---|")
+    for ref, est, align in PAIRS:
+        t_ours, ours = _timed(_ours, ROOT / ref, ROOT / est, align)
+        t_evo, theirs = _timed(_evo, ROOT / ref, ROOT / est, align)
+        diff = max(abs(ours[m][k] - theirs[m][k]) for m in ("ape", "rpe") for k in ("rmse", "mean", "median", "std", "min", "max"))
+        print(f"| {ref} / {Path(est).name} | {align} | {ours['ape']['rmse']:.6f} | {diff:.1e} | {t_ours:.3f} | {t_evo:.3f} | {t_evo / t_ours:.1f}x |")
+
+
+if __name__ == "__main__":
+    main()

@@ -41,7 +41,9 @@ def main() -> None:
         ms = np.array(result.tracking_ms)
         ate = f"{metrics['rmse']:.4f}" if "rmse" in metrics else "n/a"
         ratio = f"{100 * metrics['rmse'] / metrics['reference_path_length_m']:.2f} %" if "rmse" in metrics else "n/a"
-        print(f"| {name} | {metrics['frames']} | {100 * metrics['tracked_fraction']:.1f} % | {metrics['init_frame']} | {ate} | {ratio} | {np.median(ms):.1f} | {np.percentile(ms, 95):.1f} |")
+        print(
+            f"| {name} | {metrics['frames']} | {100 * metrics['tracked_fraction']:.1f} % | {metrics['init_frame']} | {ate} | {ratio} | {np.median(ms):.1f} | {np.percentile(ms, 95):.1f} |"
+        )
         sys.stdout.flush()
     print(f"\npeak memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from evp.config import Settings
+from evp.errors import DatasetError
 from evp.io.registry import open_dataset
 from evp.pipeline import run_dataset, write_outputs
 from evp.run_setup import make_estimator
@@ -48,7 +49,7 @@ def test_bad_frames_are_skipped_and_reported(tmp_path):
     lines = (root / "images.txt").read_text().splitlines()
     lines[12] = lines[11].split()[0] + " " + lines[12].split()[1]  # duplicate timestamp
     (root / "images.txt").write_text("\n".join(lines) + "\n")
-    with pytest.raises(Exception):
+    with pytest.raises(DatasetError, match="must increase"):
         open_dataset(root)  # the reader refuses non-increasing stamps outright...
     lines[12] = f"{float(lines[11].split()[0]) + 0.001:.6f} " + lines[12].split()[1]
     (root / "images.txt").write_text("\n".join(lines) + "\n")

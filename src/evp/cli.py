@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -52,7 +51,7 @@ def _root(
 @app.command()
 def info(
     path: Path = typer.Argument(..., help="Dataset folder or file (format auto-detected)."),
-    fmt: Optional[str] = typer.Option(None, "--format", help="Reader name, to skip auto-detection."),
+    fmt: str | None = typer.Option(None, "--format", help="Reader name, to skip auto-detection."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of text."),
 ) -> None:
     """Print what a dataset holds: format, frames, rate, duration, sensors, calibration, ground truth."""
@@ -67,8 +66,8 @@ def info(
 def run(
     dataset_path: Path = typer.Argument(..., metavar="DATASET", help="Dataset folder or file (format auto-detected)."),
     out: Path = typer.Option(..., "--out", help="Folder for trajectory.tum, metrics.json, plots, settings."),
-    config: Optional[Path] = typer.Option(None, "--config", help="Settings YAML (EVP layout or ORB-SLAM settings)."),
-    fmt: Optional[str] = typer.Option(None, "--format", help="Reader name, to skip auto-detection."),
+    config: Path | None = typer.Option(None, "--config", help="Settings YAML (EVP layout or ORB-SLAM settings)."),
+    fmt: str | None = typer.Option(None, "--format", help="Reader name, to skip auto-detection."),
 ) -> None:
     """Estimate the camera trajectory of a dataset and evaluate it when ground truth exists."""
     from rich.progress import Progress
@@ -87,11 +86,15 @@ def run(
         task = progress.add_task(f"{dataset.name}", total=dataset.num_frames)
         result = run_dataset(dataset, estimator, lambda n: progress.advance(task, n))
     metrics = write_outputs(result, dataset, settings, out)
-    typer.echo(f"{dataset.name}: tracked {metrics['tracked_frames']}/{metrics['frames']} frames "
-               f"({100 * metrics['tracked_fraction']:.1f} %), first tracked frame {metrics['init_frame']}")
+    typer.echo(
+        f"{dataset.name}: tracked {metrics['tracked_frames']}/{metrics['frames']} frames "
+        f"({100 * metrics['tracked_fraction']:.1f} %), first tracked frame {metrics['init_frame']}"
+    )
     if "rmse" in metrics:
-        typer.echo(f"ATE (Sim3-aligned RMSE) {metrics['rmse']:.4f} m over {metrics['matched_poses']} poses; "
-                   f"ground-truth path {metrics['reference_path_length_m']:.2f} m")
+        typer.echo(
+            f"ATE (Sim3-aligned RMSE) {metrics['rmse']:.4f} m over {metrics['matched_poses']} poses; "
+            f"ground-truth path {metrics['reference_path_length_m']:.2f} m"
+        )
     for reason in metrics["skipped"]:
         typer.echo(f"skipped: {reason}", err=True)
     typer.echo(f"results in {out}")
@@ -111,17 +114,17 @@ def evaluate_command(
     ref: Path = typer.Argument(..., help="Reference trajectory (TUM, KITTI or EuRoC CSV)."),
     est: Path = typer.Argument(..., help="Estimated trajectory (TUM, KITTI or EuRoC CSV)."),
     align: str = typer.Option("sim3", "--align", help="none, se3 or sim3 (Umeyama)."),
-    n_align: Optional[int] = typer.Option(None, "--n-align", help="Align on the first N matched poses only."),
+    n_align: int | None = typer.Option(None, "--n-align", help="Align on the first N matched poses only."),
     max_diff: float = typer.Option(0.01, "--t-max-diff", help="Largest time difference (s) for matching poses."),
     offset: float = typer.Option(0.0, "--t-offset", help="Seconds added to the estimate's timestamps."),
-    ref_times: Optional[Path] = typer.Option(None, "--ref-times", help="times.txt for a KITTI reference."),
-    est_times: Optional[Path] = typer.Option(None, "--est-times", help="times.txt for a KITTI estimate."),
+    ref_times: Path | None = typer.Option(None, "--ref-times", help="times.txt for a KITTI reference."),
+    est_times: Path | None = typer.Option(None, "--est-times", help="times.txt for a KITTI estimate."),
     rpe_delta: float = typer.Option(1.0, "--rpe-delta", help="RPE pair distance."),
     rpe_unit: str = typer.Option("frames", "--rpe-unit", help="frames or m."),
-    z_target: Optional[float] = typer.Option(None, "--z-target", help="Also report poses with |z_ref - Z| < --z-tol."),
+    z_target: float | None = typer.Option(None, "--z-target", help="Also report poses with |z_ref - Z| < --z-tol."),
     z_tol: float = typer.Option(2.0, "--z-tol", help="Tolerance (m) of the z subset."),
-    json_out: Optional[Path] = typer.Option(None, "--json", help="Write all statistics as JSON."),
-    report: Optional[Path] = typer.Option(None, "--report", help="Write plots and a Markdown summary to this folder."),
+    json_out: Path | None = typer.Option(None, "--json", help="Write all statistics as JSON."),
+    report: Path | None = typer.Option(None, "--report", help="Write plots and a Markdown summary to this folder."),
 ) -> None:
     """Compare an estimated trajectory with a reference: APE, RPE, XY RMSE, quartiles (evo's conventions)."""
     from evp.eval.cli_support import run_evaluation
@@ -133,7 +136,9 @@ def evaluate_command(
     typer.echo("APE translation (m): " + "  ".join(f"{k} {stats[k]:.6g}" for k in ("rmse", "mean", "median", "std", "min", "max", "q1", "q3", "iqr")))
     typer.echo(f"XY RMSE (m): {summary['xy_rmse']:.6g}   APE rotation RMSE (deg): {summary['ape_rotation_deg']['rmse']:.6g}")
     if "rpe" in summary:
-        typer.echo(f"RPE ({rpe_delta:g} {rpe_unit}): translation RMSE {summary['rpe']['translation_m']['rmse']:.6g} m, rotation RMSE {summary['rpe']['rotation_deg']['rmse']:.6g} deg")
+        typer.echo(
+            f"RPE ({rpe_delta:g} {rpe_unit}): translation RMSE {summary['rpe']['translation_m']['rmse']:.6g} m, rotation RMSE {summary['rpe']['rotation_deg']['rmse']:.6g} deg"
+        )
     if "subset" in summary and summary["subset"]["ape_translation_m"]:
         typer.echo(f"subset {summary['subset']['rule']}: {summary['subset']['poses']} poses, RMSE {summary['subset']['ape_translation_m']['rmse']:.6g} m")
     if json_out:
@@ -150,7 +155,7 @@ def convert(
     src: Path = typer.Argument(..., help="Trajectory file (TUM, KITTI, EuRoC CSV or EVP CSV)."),
     dst: Path = typer.Argument(..., help="Output file."),
     to: str = typer.Option("tum", "--to", help="tum, kitti or csv."),
-    times: Optional[Path] = typer.Option(None, "--times", help="times.txt giving stamps to a KITTI input."),
+    times: Path | None = typer.Option(None, "--times", help="times.txt giving stamps to a KITTI input."),
 ) -> None:
     """Convert a trajectory between formats (full float precision)."""
     from evp.io.trajectory import TrajectoryFormat, read_timestamps, read_trajectory, write_trajectory
@@ -199,9 +204,9 @@ def calibrate(
 @app.command()
 def camera(
     source: str = typer.Argument(..., help="Calibration file (OpenCV, ROS, ORB-SLAM, Kalibr, EuRoC) or profile name."),
-    width: Optional[int] = typer.Option(None, "--width", help="Rescale to this width (with --height)."),
-    height: Optional[int] = typer.Option(None, "--height", help="Rescale to this height (with --width)."),
-    out: Optional[Path] = typer.Option(None, "--out", help="Write it as OpenCV FileStorage YAML."),
+    width: int | None = typer.Option(None, "--width", help="Rescale to this width (with --height)."),
+    height: int | None = typer.Option(None, "--height", help="Rescale to this height (with --width)."),
+    out: Path | None = typer.Option(None, "--out", help="Write it as OpenCV FileStorage YAML."),
 ) -> None:
     """Show a camera model from a file or a shipped profile (e.g. nexus5x_640x380); list profiles with 'list'."""
     from evp.calib.camera_files import read_camera, write_opencv_yaml
@@ -213,15 +218,17 @@ def camera(
     model = read_camera(source) if Path(source).is_file() else load_profile(source)
     if width and height:
         model = model.scaled(width, height)
-    typer.echo(f"{model.name}: {model.width}x{model.height} fx {model.fx:.4f} fy {model.fy:.4f} cx {model.cx:.4f} cy {model.cy:.4f} "
-               f"k1 {model.k1:g} k2 {model.k2:g} p1 {model.p1:g} p2 {model.p2:g} k3 {model.k3:g}")
+    typer.echo(
+        f"{model.name}: {model.width}x{model.height} fx {model.fx:.4f} fy {model.fy:.4f} cx {model.cx:.4f} cy {model.cy:.4f} "
+        f"k1 {model.k1:g} k2 {model.k2:g} p1 {model.p1:g} p2 {model.p2:g} k3 {model.k3:g}"
+    )
     if out:
         write_opencv_yaml(out, model)
         typer.echo(f"wrote {out}")
 
 
 @config_app.command("dump")
-def config_dump(path: Optional[Path] = typer.Argument(None, help="Settings file to load first (else the defaults).")) -> None:
+def config_dump(path: Path | None = typer.Argument(None, help="Settings file to load first (else the defaults).")) -> None:
     """Print the effective settings as YAML."""
     from evp.config import load_settings, settings_yaml
 

@@ -86,11 +86,16 @@ def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: 
         for e in result.estimates:
             handle.write(f"{e.timestamp!r},{e.tracking_state.value},{e.quality}\n")
     ms = np.array(result.tracking_ms) if result.tracking_ms else np.zeros(1)
-    (out / "timing.json").write_text(json.dumps({
-        "tracking_ms": result.tracking_ms,
-        "tracking_ms_median": float(np.median(ms)),
-        "tracking_ms_p95": float(np.percentile(ms, 95)),
-    }, indent=2))
+    (out / "timing.json").write_text(
+        json.dumps(
+            {
+                "tracking_ms": result.tracking_ms,
+                "tracking_ms_median": float(np.median(ms)),
+                "tracking_ms_p95": float(np.percentile(ms, 95)),
+            },
+            indent=2,
+        )
+    )
     metrics: dict = {
         "frames": dataset.num_frames,
         "frames_fed": len(result.estimates),

@@ -194,7 +194,7 @@ class CameraModel:
         depth = np.broadcast_to(np.asarray(depth, dtype=float), (len(xy),))
         return np.stack([xy[:, 0] * depth, xy[:, 1] * depth, depth], axis=1)
 
-    def scaled(self, width: int, height: int) -> "CameraModel":
+    def scaled(self, width: int, height: int) -> CameraModel:
         """The same lens at another resolution (same field of view; distortion is unit-free).
 
         Uses the pixel-centre convention: a pixel edge at 0 stays at 0, so c' = (c + 0.5) s - 0.5.

@@ -39,7 +39,7 @@ def test_ros_camera_info(tmp_path):
 def test_orbslam_settings(tmp_path, prefix):
     path = tmp_path / "orb.yaml"
     path.write_text(
-        f"%YAML:1.0\nCamera.type: \"PinHole\"\n{prefix}.fx: 500.0\n{prefix}.fy: 501.0\n{prefix}.cx: 320.5\n{prefix}.cy: 240.5\n"
+        f'%YAML:1.0\nCamera.type: "PinHole"\n{prefix}.fx: 500.0\n{prefix}.fy: 501.0\n{prefix}.cx: 320.5\n{prefix}.cy: 240.5\n'
         f"{prefix}.k1: 0.1\n{prefix}.k2: -0.2\n{prefix}.p1: 0.001\n{prefix}.p2: 0.002\nCamera.width: 640\nCamera.height: 480\n"
         "Camera.fps: 30\nORBextractor.nFeatures: 1500\n"
     )

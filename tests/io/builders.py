@@ -72,7 +72,9 @@ def make_tum_rgbd(root: Path, count: int = 5) -> Path:
         shutil.copy(src, root / "rgb" / f"{1305031102.175304 + i * 0.033:.6f}.png")
         lines.append(f"{1305031102.175304 + i * 0.033:.6f} rgb/{1305031102.175304 + i * 0.033:.6f}.png")
     (root / "rgb.txt").write_text("\n".join(lines) + "\n")
-    (root / "groundtruth.txt").write_text("# timestamp tx ty tz qx qy qz qw\n" + "".join(f"{1305031102.17 + i * 0.01} {i * 0.001} 0 0 0 0 0 1\n" for i in range(20)))
+    (root / "groundtruth.txt").write_text(
+        "# timestamp tx ty tz qx qy qz qw\n" + "".join(f"{1305031102.17 + i * 0.01} {i * 0.001} 0 0 0 0 0 1\n" for i in range(20))
+    )
     (root / "accelerometer.txt").write_text("# accelerometer data\n" + "".join(f"{1305031102.17 + i * 0.01} 0.1 -9.8 0.2\n" for i in range(20)))
     return root
 
@@ -89,7 +91,9 @@ def write_geotagged_jpeg(path: Path, seconds: int, lat: float, lon: float, alt: 
     exif = Image.Exif()
     exif.get_ifd(0x8769).update({36867: f"2020:01:01 10:00:{seconds:02d}", 41989: 20})
     if gps:
-        exif.get_ifd(0x8825).update({1: "N" if lat >= 0 else "S", 2: dms(lat), 3: "E" if lon >= 0 else "W", 4: dms(lon), 5: b"\x00", 6: IFDRational(round(alt * 10), 10)})
+        exif.get_ifd(0x8825).update(
+            {1: "N" if lat >= 0 else "S", 2: dms(lat), 3: "E" if lon >= 0 else "W", 4: dms(lon), 5: b"\x00", 6: IFDRational(round(alt * 10), 10)}
+        )
     image.save(path, exif=exif, quality=90)
 
 

@@ -59,14 +59,18 @@ def test_standalone_mcap(tmp_path, compressed):
     _check(open_dataset(path))
 
 
+def _write_bag(writer, store, serialize, compressed: bool) -> None:
+    connections = {}
+    for topic, msgtype, msg, t in _messages(store, compressed):
+        if topic not in connections:
+            connections[topic] = writer.add_connection(topic, msgtype, typestore=store)
+        writer.write(connections[topic], int(t * 1e9), serialize(msg, msgtype))
+
+
 def test_ros1_bag(tmp_path):
     path = tmp_path / "rec.bag"
     with Ros1Writer(path) as writer:
-        connections = {}
-        for topic, msgtype, msg, t in _messages(rm.ROS1, False):
-            if topic not in connections:
-                connections[topic] = writer.add_connection(topic, msgtype, typestore=rm.ROS1)
-            writer.write(connections[topic], int(t * 1e9), rm.ROS1.serialize_ros1(msg, msgtype))
+        _write_bag(writer, rm.ROS1, rm.ROS1.serialize_ros1, compressed=False)
     _check(open_dataset(path))
 
 
@@ -74,11 +78,7 @@ def test_ros1_bag(tmp_path):
 def test_ros2_bag_folder(tmp_path, storage):
     path = tmp_path / "rec_bag"
     with Ros2Writer(path, version=9, storage_plugin=storage) as writer:
-        connections = {}
-        for topic, msgtype, msg, t in _messages(rm.ROS2, True):
-            if topic not in connections:
-                connections[topic] = writer.add_connection(topic, msgtype, typestore=rm.ROS2)
-            writer.write(connections[topic], int(t * 1e9), rm.ROS2.serialize_cdr(msg, msgtype))
+        _write_bag(writer, rm.ROS2, rm.ROS2.serialize_cdr, compressed=True)
     _check(open_dataset(path))
 
 

@@ -48,7 +48,7 @@ class BoardSpec:
         grid = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2) * self.square_m
         return np.column_stack([grid, np.zeros(len(grid))]).astype(np.float32)
 
-    def charuco_board(self) -> "cv2.aruco.CharucoBoard":
+    def charuco_board(self) -> cv2.aruco.CharucoBoard:
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
         return cv2.aruco.CharucoBoard((self.cols, self.rows), self.square_m, self.marker_m, dictionary)
 

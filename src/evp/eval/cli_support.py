@@ -26,9 +26,20 @@ def _stamped(trajectory: Trajectory, times: Path | None, other: Trajectory, labe
     raise EvaluationError(f"the {label} is a KITTI file without times and the other trajectory has timestamps: give --{label[:3]}-times times.txt")
 
 
-def run_evaluation(ref_path: Path, est_path: Path, align: str, n_align: int | None, max_diff: float, offset: float,
-                   ref_times: Path | None, est_times: Path | None, rpe_delta: float, rpe_unit: str,
-                   z_target: float | None, z_tol: float) -> EvaluationResult:
+def run_evaluation(
+    ref_path: Path,
+    est_path: Path,
+    align: str,
+    n_align: int | None,
+    max_diff: float,
+    offset: float,
+    ref_times: Path | None,
+    est_times: Path | None,
+    rpe_delta: float,
+    rpe_unit: str,
+    z_target: float | None,
+    z_tol: float,
+) -> EvaluationResult:
     try:
         options = EvaluationOptions(Alignment(align), n_align, max_diff, offset, rpe_delta, DeltaUnit(rpe_unit), False, z_target, z_tol)
     except ValueError as exc:

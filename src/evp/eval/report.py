@@ -17,7 +17,9 @@ def markdown_summary(result: EvaluationResult, ref_name: str, est_name: str) -> 
         f"# Trajectory evaluation: `{est_name}` vs `{ref_name}`",
         "",
         f"- matched poses: {summary['matched_poses']} (max time difference {result.options.max_diff_s} s, offset {result.options.offset_s} s)",
-        f"- alignment: {result.options.align.value}" + (f" on the first {result.options.n_align} poses" if result.options.n_align else "") + f", scale {result.alignment.scale:.6g}",
+        f"- alignment: {result.options.align.value}"
+        + (f" on the first {result.options.n_align} poses" if result.options.n_align else "")
+        + f", scale {result.alignment.scale:.6g}",
         *(["- alignment is degenerate (collinear positions): the rotation about that line is not observable"] if result.alignment.degenerate else []),
         f"- reference path length: {summary['reference_path_length_m']:.3f} m",
         f"- XY RMSE: {summary['xy_rmse']:.6g} m",
@@ -26,13 +28,21 @@ def markdown_summary(result: EvaluationResult, ref_name: str, est_name: str) -> 
         "|---|---|---|---|",
     ]
     for row in ROWS:
-        lines.append(f"| {row} | {summary['ape_translation_m'][row]:.6g} | {summary['ape_translation_xy_m'][row]:.6g} | {summary['ape_rotation_deg'][row]:.6g} |")
+        lines.append(
+            f"| {row} | {summary['ape_translation_m'][row]:.6g} | {summary['ape_translation_xy_m'][row]:.6g} | {summary['ape_rotation_deg'][row]:.6g} |"
+        )
     if "rpe" in summary:
         rpe = summary["rpe"]
-        lines += ["", f"RPE over {rpe['pairs']} pairs {rpe['delta']:g} {rpe['unit']} apart: translation RMSE {rpe['translation_m']['rmse']:.6g} m, rotation RMSE {rpe['rotation_deg']['rmse']:.6g} deg"]
+        lines += [
+            "",
+            f"RPE over {rpe['pairs']} pairs {rpe['delta']:g} {rpe['unit']} apart: translation RMSE {rpe['translation_m']['rmse']:.6g} m, rotation RMSE {rpe['rotation_deg']['rmse']:.6g} deg",
+        ]
     if "subset" in summary and summary["subset"]["ape_translation_m"]:
         sub = summary["subset"]
-        lines += ["", f"Subset {sub['rule']}: {sub['poses']} poses, APE RMSE {sub['ape_translation_m']['rmse']:.6g} m, mean {sub['ape_translation_m']['mean']:.6g} m, max {sub['ape_translation_m']['max']:.6g} m"]
+        lines += [
+            "",
+            f"Subset {sub['rule']}: {sub['poses']} poses, APE RMSE {sub['ape_translation_m']['rmse']:.6g} m, mean {sub['ape_translation_m']['mean']:.6g} m, max {sub['ape_translation_m']['max']:.6g} m",
+        ]
     lines += ["", "![top view](top_view.png)", "![APE over time](ape_over_time.png)", "![histogram](ape_histogram.png)", "![box plot](ape_boxplot.png)", ""]
     return "\n".join(lines)
 

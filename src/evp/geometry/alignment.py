@@ -30,7 +30,7 @@ class Similarity:
         return out
 
     @staticmethod
-    def identity(dim: int = 3) -> "Similarity":
+    def identity(dim: int = 3) -> Similarity:
         return Similarity(np.eye(dim), np.zeros(dim), 1.0)
 
 

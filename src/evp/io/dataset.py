@@ -66,7 +66,14 @@ class Dataset:
 
     def sensors(self) -> dict[str, int]:
         """Sample count per sensor present."""
-        counts = {"camera": self.num_frames, "imu": len(self.imu), "gps": len(self.gps), "baro": len(self.baro), "wheel": len(self.wheel), "wifi": len(self.wifi)}
+        counts = {
+            "camera": self.num_frames,
+            "imu": len(self.imu),
+            "gps": len(self.gps),
+            "baro": len(self.baro),
+            "wheel": len(self.wheel),
+            "wifi": len(self.wifi),
+        }
         return {name: count for name, count in counts.items() if count}
 
 

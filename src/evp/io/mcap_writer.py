@@ -39,7 +39,7 @@ class McapRecorder:
         self._writer.finish()
         self._file.close()
 
-    def __enter__(self) -> "McapRecorder":
+    def __enter__(self) -> McapRecorder:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -47,8 +47,13 @@ def image_to_msg(store, timestamp: float, image: np.ndarray, frame_id: str = "ca
     encoding = "mono8" if image.ndim == 2 else "bgr8"
     channels = 1 if image.ndim == 2 else image.shape[2]
     return store.types[IMAGE](
-        header=_header(store, timestamp, frame_id), height=image.shape[0], width=image.shape[1], encoding=encoding,
-        is_bigendian=0, step=image.shape[1] * channels, data=np.ascontiguousarray(image).reshape(-1),
+        header=_header(store, timestamp, frame_id),
+        height=image.shape[0],
+        width=image.shape[1],
+        encoding=encoding,
+        is_bigendian=0,
+        step=image.shape[1] * channels,
+        data=np.ascontiguousarray(image).reshape(-1),
     )
 
 
@@ -61,9 +66,13 @@ def imu_to_msg(store, sample: ImuSample, frame_id: str = "imu"):
     zeros = np.zeros(9)
     orientation = store.types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)
     return store.types[IMU](
-        header=_header(store, sample.timestamp, frame_id), orientation=orientation, orientation_covariance=np.r_[-1.0, np.zeros(8)],
-        angular_velocity=_vector(store, sample.angular_velocity_rad_s), angular_velocity_covariance=zeros,
-        linear_acceleration=_vector(store, sample.linear_acceleration_m_s2), linear_acceleration_covariance=zeros,
+        header=_header(store, sample.timestamp, frame_id),
+        orientation=orientation,
+        orientation_covariance=np.r_[-1.0, np.zeros(8)],
+        angular_velocity=_vector(store, sample.angular_velocity_rad_s),
+        angular_velocity_covariance=zeros,
+        linear_acceleration=_vector(store, sample.linear_acceleration_m_s2),
+        linear_acceleration_covariance=zeros,
     )
 
 
@@ -73,8 +82,13 @@ def gps_to_msg(store, fix: GpsFix, frame_id: str = "gps"):
     v = fix.vertical_accuracy_m if math.isfinite(fix.vertical_accuracy_m) else 0.0
     known = math.isfinite(fix.horizontal_accuracy_m)
     return store.types[NAVSAT](
-        header=_header(store, fix.timestamp, frame_id), status=status, latitude=fix.latitude_deg, longitude=fix.longitude_deg,
-        altitude=fix.altitude_m, position_covariance=np.diag([h * h, h * h, v * v]).reshape(-1), position_covariance_type=2 if known else 0,
+        header=_header(store, fix.timestamp, frame_id),
+        status=status,
+        latitude=fix.latitude_deg,
+        longitude=fix.longitude_deg,
+        altitude=fix.altitude_m,
+        position_covariance=np.diag([h * h, h * h, v * v]).reshape(-1),
+        position_covariance_type=2 if known else 0,
     )
 
 
@@ -87,8 +101,13 @@ def camera_info_to_msg(store, timestamp: float, camera: CameraModel, frame_id: s
     P[:, :3] = camera.K
     roi = store.types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
     fields = dict(
-        header=_header(store, timestamp, frame_id), height=camera.height, width=camera.width, distortion_model="plumb_bob",
-        binning_x=0, binning_y=0, roi=roi,
+        header=_header(store, timestamp, frame_id),
+        height=camera.height,
+        width=camera.width,
+        distortion_model="plumb_bob",
+        binning_x=0,
+        binning_y=0,
+        roi=roi,
     )
     arrays = dict(d=camera.distortion, k=camera.K.reshape(-1), r=np.eye(3).reshape(-1), p=P.reshape(-1))
     if store is ROS1:
@@ -97,6 +116,7 @@ def camera_info_to_msg(store, timestamp: float, camera: CameraModel, frame_id: s
 
 
 # --- messages to EVP records ---------------------------------------------------------------
+
 
 def msg_to_image(msg, msgtype: str) -> np.ndarray | None:
     """Decoded image (grey or BGR uint8), or None when the payload cannot be decoded."""

@@ -28,12 +28,27 @@ def summarise(dataset: Dataset) -> dict:
     out["sensors"] = sensors
     if dataset.camera is not None:
         c = dataset.camera
-        out["calibration"] = {"name": c.name, "width": c.width, "height": c.height, "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "distortion": c.distortion.tolist()}
+        out["calibration"] = {
+            "name": c.name,
+            "width": c.width,
+            "height": c.height,
+            "fx": c.fx,
+            "fy": c.fy,
+            "cx": c.cx,
+            "cy": c.cy,
+            "distortion": c.distortion.tolist(),
+        }
     else:
         out["calibration"] = None
     gt = dataset.ground_truth
     if gt is not None:
-        out["ground_truth"] = {"poses": len(gt), "duration_s": gt.duration, "path_length_m": gt.path_length, "rate_hz": _rate(gt.timestamps) if gt.timestamps is not None else None, "note": dataset.ground_truth_note}
+        out["ground_truth"] = {
+            "poses": len(gt),
+            "duration_s": gt.duration,
+            "path_length_m": gt.path_length,
+            "rate_hz": _rate(gt.timestamps) if gt.timestamps is not None else None,
+            "note": dataset.ground_truth_note,
+        }
     else:
         out["ground_truth"] = None
     if dataset.trajectories:

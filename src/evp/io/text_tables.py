@@ -9,7 +9,9 @@ import numpy as np
 from evp.errors import DatasetError
 
 
-def read_table(path: Path, columns: int | None = None, min_columns: int = 1, delimiter: str | None = None, header: bool | None = None) -> tuple[np.ndarray, list[int], list[str]]:
+def read_table(
+    path: Path, columns: int | None = None, min_columns: int = 1, delimiter: str | None = None, header: bool | None = None
+) -> tuple[np.ndarray, list[int], list[str]]:
     """Numeric rows of a text table.
 
     Lines starting with ``#`` are comments; a first line that is not numeric is a header when

@@ -48,7 +48,7 @@ class Trajectory:
             raise ValueError("timestamps must be (N,)")
 
     @staticmethod
-    def from_poses(poses: np.ndarray, timestamps: np.ndarray | None = None, name: str = "") -> "Trajectory":
+    def from_poses(poses: np.ndarray, timestamps: np.ndarray | None = None, name: str = "") -> Trajectory:
         """From a stack of 4x4 poses."""
         poses = np.asarray(poses, dtype=float).reshape(-1, 4, 4)
         stamps = None if timestamps is None else np.asarray(timestamps, dtype=float)
@@ -75,12 +75,12 @@ class Trajectory:
             return 0.0
         return float(self.timestamps[-1] - self.timestamps[0])
 
-    def select(self, indices: np.ndarray) -> "Trajectory":
+    def select(self, indices: np.ndarray) -> Trajectory:
         """The poses at the given indices (or boolean mask)."""
         stamps = None if self.timestamps is None else self.timestamps[indices]
         return Trajectory(self.positions[indices], self.quats_xyzw[indices], stamps, self.name)
 
-    def with_timestamps(self, timestamps: np.ndarray) -> "Trajectory":
+    def with_timestamps(self, timestamps: np.ndarray) -> Trajectory:
         stamps = np.asarray(timestamps, dtype=float)
         if len(stamps) != len(self):
             raise ValueError(f"{len(stamps)} timestamps for {len(self)} poses")

@@ -24,7 +24,7 @@ def chessboard_texture(cols: int, rows: int, margin_squares: float = 1.0) -> tup
     return texture, margin + s - 0.5
 
 
-def charuco_texture(board: "cv2.aruco.CharucoBoard", margin_squares: float = 1.0) -> tuple[np.ndarray, float]:
+def charuco_texture(board: cv2.aruco.CharucoBoard, margin_squares: float = 1.0) -> tuple[np.ndarray, float]:
     """ChArUco board image with a white margin, and the texture coordinate of the board's outer
     top-left corner (OpenCV's origin for ChArUco object points)."""
     cols, rows = board.getChessboardSize()
@@ -34,7 +34,9 @@ def charuco_texture(board: "cv2.aruco.CharucoBoard", margin_squares: float = 1.0
     return cv2.copyMakeBorder(image, margin, margin, margin, margin, cv2.BORDER_CONSTANT, value=255), margin - 0.5
 
 
-def render_board(camera: CameraModel, texture: np.ndarray, origin_px: float, square_m: float, rvec: np.ndarray, tvec: np.ndarray, supersample: int = 3) -> np.ndarray:
+def render_board(
+    camera: CameraModel, texture: np.ndarray, origin_px: float, square_m: float, rvec: np.ndarray, tvec: np.ndarray, supersample: int = 3
+) -> np.ndarray:
     """Grey image of a planar board texture (``TEXTURE_PX_PER_SQUARE`` pixels per square, board
     origin at texture coordinate ``origin_px`` on both axes, z = 0) seen under pose (rvec, tvec).
 
@@ -60,7 +62,9 @@ def render_board(camera: CameraModel, texture: np.ndarray, origin_px: float, squ
     return cv2.remap(ideal, map_x, map_y, cv2.INTER_LINEAR, borderValue=255)
 
 
-def random_board_poses(camera: CameraModel, count: int, cols: int, rows: int, square_m: float, seed: int = 0, origin_offset_m: float = 0.0) -> list[tuple[np.ndarray, np.ndarray]]:
+def random_board_poses(
+    camera: CameraModel, count: int, cols: int, rows: int, square_m: float, seed: int = 0, origin_offset_m: float = 0.0
+) -> list[tuple[np.ndarray, np.ndarray]]:
     """Varied board poses (tilts up to ~35 degrees) spread over the image, the board filling much of it.
 
     A calibration needs views where the board is large and tilted to separate focal length from

@@ -153,9 +153,17 @@ class KltVisualOdometry:
         guess = se3_inverse(self._T_world_cam @ self._velocity)  # T_cam_world
         rvec, _ = cv2.Rodrigues(guess[:3, :3])
         ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-            kf.points_world[with_3d], self._tracks[with_3d], self.camera.K, self.camera.distortion,
-            rvec.copy(), guess[:3, 3].copy(), useExtrinsicGuess=True, iterationsCount=100,
-            reprojectionError=2.0 * s.ransac_threshold_px, confidence=0.999, flags=cv2.SOLVEPNP_ITERATIVE,
+            kf.points_world[with_3d],
+            self._tracks[with_3d],
+            self.camera.K,
+            self.camera.distortion,
+            rvec.copy(),
+            guess[:3, 3].copy(),
+            useExtrinsicGuess=True,
+            iterationsCount=100,
+            reprojectionError=2.0 * s.ransac_threshold_px,
+            confidence=0.999,
+            flags=cv2.SOLVEPNP_ITERATIVE,
         )
         if not ok or inliers is None or len(inliers) < s.min_tracked_points:
             return self._lost(frame, grey)

@@ -113,10 +113,16 @@ class ExifPhotoReader:
         dataset.notes.append(f"times: seconds since the first photo ({datetime.fromtimestamp(t0):%Y-%m-%d %H:%M:%S} camera clock)")
         origin = fixes[0]
         east, north, up = pymap3d.geodetic2enu(
-            np.array([f.latitude_deg for f in fixes]), np.array([f.longitude_deg for f in fixes]), np.array([f.altitude_m for f in fixes]),
-            origin.latitude_deg, origin.longitude_deg, origin.altitude_m,
+            np.array([f.latitude_deg for f in fixes]),
+            np.array([f.longitude_deg for f in fixes]),
+            np.array([f.altitude_m for f in fixes]),
+            origin.latitude_deg,
+            origin.longitude_deg,
+            origin.altitude_m,
         )
         quats = np.tile([0.0, 0.0, 0.0, 1.0], (len(fixes), 1))
         dataset.ground_truth = Trajectory(np.column_stack([east, north, up]), quats, times, "gps_enu")
-        dataset.ground_truth_note = f"EXIF GPS in ENU at the first fix ({origin.latitude_deg:.6f}, {origin.longitude_deg:.6f}, {origin.altitude_m:.1f} m); position only"
+        dataset.ground_truth_note = (
+            f"EXIF GPS in ENU at the first fix ({origin.latitude_deg:.6f}, {origin.longitude_deg:.6f}, {origin.altitude_m:.1f} m); position only"
+        )
         return dataset

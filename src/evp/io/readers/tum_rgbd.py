@@ -8,8 +8,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from evp.calib.camera_files import read_camera
 from evp.errors import DatasetError
 from evp.io.dataset import Dataset, check_increasing, image_file_frames, image_size

@@ -59,6 +59,8 @@ def test_eval_contract_json_and_report(tmp_path):
         assert key in metrics
     assert metrics["matched_poses"] == len(truth)
     assert metrics["rmse"] < 0.005
+    assert metrics["options"]["align"] == "sim3"
+    assert yaml.safe_load((tmp_path / "report" / "settings.yaml").read_text())["eval"]["align"] == "sim3"
     for name in ("top_view.png", "ape_over_time.png", "ape_histogram.png", "ape_boxplot.png", "report.md"):
         assert (tmp_path / "report" / name).stat().st_size > 1000
     none = json.loads((evp("eval", gt, tmp_path / "est.tum", "--align", "none", "--json", tmp_path / "n.json"), (tmp_path / "n.json").read_text())[1])
@@ -98,7 +100,7 @@ def test_camera_profile_and_formats():
 def test_calibrate_command_writes_opencv_yaml(tmp_path):
     import cv2
 
-    from evp.calib.camera_files import read_camera
+    from evp.calib.camera_files import load_yaml_mapping, read_camera
     from evp.calib.profiles import load_profile
     from evp.sim.calibration_target import chessboard_texture, random_board_poses, render_board
 
@@ -111,6 +113,8 @@ def test_calibrate_command_writes_opencv_yaml(tmp_path):
     assert result.returncode == 0, result.stderr
     assert "RMS reprojection error" in result.stdout
     assert read_camera(out).fx == pytest.approx(494.08, rel=0.005)
+    stored = load_yaml_mapping(out)
+    assert stored["board_square_m"] == pytest.approx(0.03) and stored["board_pattern"] == "chessboard" and stored["views_used"] == 8
     empty = tmp_path / "empty"
     empty.mkdir()
     failed = evp("calibrate", empty, "--cols", 9, "--rows", 7, "--square", 0.03)

@@ -145,9 +145,12 @@ def evaluate_command(
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(summary, indent=2))
     if report:
+        from evp.config import EvalSettings, Settings, write_settings
         from evp.eval.report import write_report
 
         typer.echo(f"report: {write_report(result, report, ref.name, est.name)}")
+        eval_settings = EvalSettings(align=align, n_align=n_align, max_time_diff_s=max_diff, time_offset_s=offset, rpe_delta=rpe_delta, rpe_unit=rpe_unit)
+        write_settings(Settings(eval=eval_settings), report)
 
 
 @app.command()
@@ -196,7 +199,10 @@ def calibrate(
         raise EvpError(str(exc)) from None
     result = calibrate_views(images_from_path(source, every), board, fix_k3=not k3)
     out.parent.mkdir(parents=True, exist_ok=True)
-    write_opencv_yaml(out, result.camera, {"rms_reprojection_error_px": result.rms_px, "views_used": len(result.per_view_rms_px)})
+    # the board and options used are stored beside the result, in the same file
+    used = {"rms_reprojection_error_px": result.rms_px, "views_used": len(result.per_view_rms_px), "views_rejected": len(result.rejected)}
+    used.update({"board_cols": cols, "board_rows": rows, "board_square_m": square, "board_marker_m": marker, "estimate_k3": int(k3), "every_nth_image": every})
+    write_opencv_yaml(out, result.camera, used, {"board_pattern": pattern, "board_dictionary": dictionary})
     typer.echo(result.report())
     typer.echo(f"wrote {out}")
 

@@ -139,7 +139,7 @@ def read_camera(path: str | Path, width: int | None = None, height: int | None =
     raise CalibrationError(path, "not a calibration file EVP understands (OpenCV, ROS camera_info, ORB-SLAM, Kalibr or EuRoC sensor.yaml)")
 
 
-def write_opencv_yaml(path: str | Path, camera: CameraModel, extra: dict[str, float] | None = None) -> None:
+def write_opencv_yaml(path: str | Path, camera: CameraModel, extra: dict[str, float | int] | None = None, text: dict[str, str] | None = None) -> None:
     """OpenCV FileStorage YAML, readable by OpenCV, ORB-SLAM-style tools and :func:`read_camera`."""
     storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
     storage.write("camera_name", camera.name or "camera")
@@ -149,5 +149,7 @@ def write_opencv_yaml(path: str | Path, camera: CameraModel, extra: dict[str, fl
     storage.write("distortion_model", "plumb_bob")
     storage.write("distortion_coefficients", camera.distortion.reshape(1, 5))
     for key, value in (extra or {}).items():
-        storage.write(key, float(value))
+        storage.write(key, value if isinstance(value, int) else float(value))
+    for key, value in (text or {}).items():
+        storage.write(key, str(value))
     storage.release()

@@ -81,6 +81,16 @@ class EvaluationResult:
             "degenerate": self.alignment.degenerate,
         }
         out["reference_path_length_m"] = self.ref.path_length
+        out["options"] = {
+            "align": self.options.align.value,
+            "n_align": self.options.n_align,
+            "max_diff_s": self.options.max_diff_s,
+            "offset_s": self.options.offset_s,
+            "rpe_delta": self.options.rpe_delta,
+            "rpe_unit": self.options.rpe_unit.value,
+            "z_target_m": self.options.z_target_m,
+            "z_tolerance_m": self.options.z_tolerance_m,
+        }
         return out
 
 

@@ -1,0 +1,126 @@
+"""Ground, floor and wall textures: procedural (seeded), from image files, and ArUco marker fields.
+
+All textures are grey uint8 with a stated size in metres per texel. The procedural ones are sums
+of smooth random fields at several scales plus kind-specific structure, so the amount of trackable
+detail differs as it does outdoors: a paved square (rich) against a mown grass field (low).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from evp.errors import EvpError
+
+TEXTURE_KINDS = ("rich", "low", "floor", "wall")
+MAX_TEXELS = 12000  # per side; coarser texels are used beyond this
+
+
+def _smooth_noise(rng: np.random.Generator, shape: tuple[int, int], cell_px: float) -> np.ndarray:
+    """Zero-mean, unit-range random field with features about ``cell_px`` texels wide."""
+    coarse = (max(2, int(shape[0] / cell_px) + 2), max(2, int(shape[1] / cell_px) + 2))
+    field = rng.uniform(-1.0, 1.0, coarse).astype(np.float32)
+    return cv2.resize(field, (shape[1], shape[0]), interpolation=cv2.INTER_CUBIC)
+
+
+def _octaves(rng, shape, metres_per_texel: float, scales_m: list[float], weights: list[float]) -> np.ndarray:
+    out = np.zeros(shape, np.float32)
+    for scale, weight in zip(scales_m, weights):
+        out += weight * _smooth_noise(rng, shape, max(1.5, scale / metres_per_texel))
+    return out
+
+
+def procedural_texture(kind: str, size_m: tuple[float, float], metres_per_texel: float, seed: int = 0) -> np.ndarray:
+    """A seeded texture of ``size_m`` (width, height) metres.
+
+    rich: paved square (slabs, joints, stains, small objects); low: grass field (faint mottling and
+    a few painted lines); floor: indoor tiles; wall: painted plaster with posters and doors.
+    """
+    if kind not in TEXTURE_KINDS:
+        raise EvpError(f"unknown texture {kind!r}; choose one of {', '.join(TEXTURE_KINDS)} or an image file")
+    rng = np.random.default_rng(seed)
+    shape = (max(8, int(round(size_m[1] / metres_per_texel))), max(8, int(round(size_m[0] / metres_per_texel))))
+    if kind == "rich":
+        base = 128 + _octaves(rng, shape, metres_per_texel, [20.0, 4.0, 0.8, 0.25], [35, 30, 25, 15])
+        slab = max(2, int(round(1.2 / metres_per_texel)))
+        joints = (np.arange(shape[0])[:, None] % slab < max(1, slab // 12)) | (np.arange(shape[1])[None, :] % slab < max(1, slab // 12))
+        base[joints] -= 45
+        for _ in range(int(shape[0] * shape[1] * metres_per_texel**2 / 40) + 5):  # benches, bins, cars, shadows
+            centre = (int(rng.integers(0, shape[1])), int(rng.integers(0, shape[0])))
+            axes = (int(rng.uniform(0.3, 2.5) / metres_per_texel) + 1, int(rng.uniform(0.3, 1.5) / metres_per_texel) + 1)
+            cv2.ellipse(base, centre, axes, float(rng.uniform(0, 180)), 0, 360, float(rng.uniform(20, 235)), -1)
+    elif kind == "low":
+        base = 110 + _octaves(rng, shape, metres_per_texel, [15.0, 3.0, 0.5], [10, 5, 3])
+        for _ in range(3):  # painted lines of a pitch
+            if rng.uniform() < 0.5:
+                x = int(rng.integers(0, shape[1]))
+                base[:, x : x + max(1, int(0.12 / metres_per_texel))] = 220
+            else:
+                y = int(rng.integers(0, shape[0]))
+                base[y : y + max(1, int(0.12 / metres_per_texel)), :] = 220
+    elif kind == "floor":
+        base = 150 + _octaves(rng, shape, metres_per_texel, [2.0, 0.3, 0.05], [15, 20, 25])
+        tile = max(2, int(round(0.4 / metres_per_texel)))
+        grout = (np.arange(shape[0])[:, None] % tile < max(1, tile // 20)) | (np.arange(shape[1])[None, :] % tile < max(1, tile // 20))
+        base[grout] -= 60
+        for _ in range(int(shape[0] * shape[1] * metres_per_texel**2 * 2) + 5):  # scuffs, stains
+            centre = (int(rng.integers(0, shape[1])), int(rng.integers(0, shape[0])))
+            radius = int(rng.uniform(0.01, 0.08) / metres_per_texel) + 1
+            cv2.circle(base, centre, radius, float(rng.uniform(40, 230)), -1)
+    else:
+        base = 170 + _octaves(rng, shape, metres_per_texel, [3.0, 0.5, 0.05], [12, 10, 8])
+        for _ in range(int(shape[0] * shape[1] * metres_per_texel**2 / 1.5) + 3):  # posters, doors, shelves
+            x0, y0 = int(rng.integers(0, shape[1])), int(rng.integers(0, shape[0]))
+            w, h = int(rng.uniform(0.2, 1.0) / metres_per_texel), int(rng.uniform(0.2, 1.2) / metres_per_texel)
+            patch = rng.uniform(30, 230) + 40 * _smooth_noise(rng, (max(2, h), max(2, w)), max(1.5, 0.05 / metres_per_texel))
+            base[y0 : y0 + h, x0 : x0 + w] = patch[: shape[0] - y0, : shape[1] - x0]
+    return np.clip(base, 0, 255).astype(np.uint8)
+
+
+def image_texture(paths: list[Path], tiles_x: int | None = None) -> np.ndarray:
+    """Grey mosaic of image files, side by side in rows (a larger field from several nadir photos)."""
+    images = []
+    for path in paths:
+        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if image is None:
+            raise EvpError(f"{path}: cannot read texture image")
+        images.append(image)
+    height, width = images[0].shape
+    images = [cv2.resize(i, (width, height), interpolation=cv2.INTER_AREA) for i in images]
+    cols = tiles_x or int(np.ceil(np.sqrt(len(images))))
+    rows = int(np.ceil(len(images) / cols))
+    mosaic = np.zeros((rows * height, cols * width), np.uint8)
+    for k, image in enumerate(images):
+        r, c = divmod(k, cols)
+        mosaic[r * height : (r + 1) * height, c * width : (c + 1) * width] = image
+    return mosaic
+
+
+# seed 003: 99 markers of 98 mm with 98 mm gaps (9 x 11), 1.86 x 2.25 m with the border gap
+MARKER_SIZE_M = 0.098
+MARKER_GAP_M = 0.098
+MARKER_COLS = 9
+MARKER_ROWS = 11
+MARKER_DICTIONARY = "DICT_4X4_100"
+
+
+def marker_field_texture(texels_per_marker: int = 24) -> tuple[np.ndarray, float, dict[int, np.ndarray]]:
+    """ArUco marker floor: (texture, metres per texel, marker id -> centre (x, y) in metres from
+    the field's corner). Marker ``id = row * 9 + col``; rows run along +y."""
+    mpt = MARKER_SIZE_M / texels_per_marker
+    gap = int(round(MARKER_GAP_M / mpt))
+    width = MARKER_COLS * texels_per_marker + (MARKER_COLS + 1) * gap
+    height = MARKER_ROWS * texels_per_marker + (MARKER_ROWS + 1) * gap
+    texture = np.full((height, width), 255, np.uint8)
+    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, MARKER_DICTIONARY))
+    centres = {}
+    for row in range(MARKER_ROWS):
+        for col in range(MARKER_COLS):
+            marker_id = row * MARKER_COLS + col
+            x0 = gap + col * (texels_per_marker + gap)
+            y0 = gap + row * (texels_per_marker + gap)
+            texture[y0 : y0 + texels_per_marker, x0 : x0 + texels_per_marker] = cv2.aruco.generateImageMarker(dictionary, marker_id, texels_per_marker)
+            centres[marker_id] = np.array([(x0 + texels_per_marker / 2) * mpt, (y0 + texels_per_marker / 2) * mpt])
+    return texture, mpt, centres

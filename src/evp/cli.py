@@ -101,6 +101,56 @@ def run(
 
 
 @app.command()
+def sim(
+    scenario: str | None = typer.Argument(None, help="Scenario name (see --list)."),
+    out: Path | None = typer.Option(None, "--out", help="Folder to write the dataset to."),
+    list_scenarios: bool = typer.Option(False, "--list", help="Print the scenario names, one per line."),
+    duration: float | None = typer.Option(None, "--duration", help="Seconds (default: the scenario's)."),
+    seed: int = typer.Option(0, "--seed", help="Random seed (noise, textures, paths)."),
+    fps: float = typer.Option(30.0, "--fps", help="Camera frame rate."),
+    camera: str | None = typer.Option(None, "--camera", help="nexus5x_640x380, global_752x480 or phone_1280x720."),
+    texture: str | None = typer.Option(None, "--texture", help="rich, low, floor, wall, or image file(s) separated by commas."),
+    altitude: float | None = typer.Option(None, "--altitude", help="Flight altitude / camera height (m)."),
+    speed: float | None = typer.Option(None, "--speed", help="Cruise speed (m/s)."),
+    pattern: str | None = typer.Option(None, "--pattern", help="Drone path: lawnmower, loops or free."),
+    gimbal: bool = typer.Option(False, "--gimbal", help="Camera held level by a gimbal."),
+    relief: bool = typer.Option(True, "--relief/--flat", help="Buildings and trees on the ground."),
+    rolling_shutter: float = typer.Option(0.0, "--rolling-shutter", help="Row readout time (s); 0 = global shutter."),
+    drop: float = typer.Option(0.0, "--drop", help="Probability of dropping a frame."),
+    noise: float = typer.Option(2.0, "--noise", help="Image read noise (grey levels)."),
+    gps_offset: float = typer.Option(0.0, "--gps-clock-offset", help="GPS clock minus camera clock (s)."),
+    spoof_start: float | None = typer.Option(None, "--spoof-start", help="Seconds into the run when GPS spoofing starts."),
+    spoof_mode: str = typer.Option("pull", "--spoof-mode", help="pull (gradual) or jump."),
+    spoof_rate: float = typer.Option(5.0, "--spoof-rate", help="Pull-off speed (m/s)."),
+    spoof_jump: float = typer.Option(50.0, "--spoof-jump", help="Jump size (m)."),
+    outage: list[str] = typer.Option([], "--gps-outage", help="Jamming window START:DURATION in seconds (repeatable)."),
+    config: Path | None = typer.Option(None, "--config", help="YAML with any SimOptions field (sensor noise models...)."),
+    workers: int = typer.Option(2, "--workers", min=1, help="Processes rendering images."),
+) -> None:
+    """Generate a synthetic dataset with exact ground truth (EuRoC-like folder, see docs/simulator.md)."""
+    from evp.sim.scenarios import SCENARIOS
+
+    if list_scenarios:
+        typer.echo("\n".join(SCENARIOS))
+        return
+    if scenario is None or out is None:
+        raise EvpError("give a scenario and --out DIR (or --list)")
+    from rich.progress import Progress
+
+    from evp.sim.cli_support import options_from_cli
+    from evp.sim.generate import generate
+
+    options = options_from_cli(config, duration=duration, seed=seed, fps=fps, camera=camera, texture=texture, altitude_m=altitude, speed_m_s=speed,
+                               pattern=pattern, gimbal=gimbal, relief=relief, rolling_shutter_s=rolling_shutter, drop_probability=drop, noise_sigma=noise,
+                               gps_clock_offset_s=gps_offset, spoof_start_s=spoof_start, spoof_mode=spoof_mode, spoof_rate_m_s=spoof_rate,
+                               spoof_jump_m=spoof_jump, outages=outage)
+    with Progress(transient=True) as progress:
+        task = progress.add_task(f"{scenario}", total=None)
+        result = generate(scenario, options, out, workers, lambda n: progress.advance(task, n), lambda total: progress.update(task, total=total))
+    typer.echo(f"{scenario}: {result.frames} frames ({len(result.dropped)} dropped), {result.scenario.motion.duration:.1f} s, sensors {', '.join(result.scenario.sensors)} -> {out}")
+
+
+@app.command()
 def formats() -> None:
     """List the dataset formats EVP reads, in detection order."""
     from evp.io.registry import readers

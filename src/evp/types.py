@@ -55,6 +55,14 @@ class BaroSample:
 
 
 @dataclass(frozen=True)
+class RangeSample:
+    """Distance (m) measured by a range finder (sonar, laser) along its axis; NaN when out of range."""
+
+    timestamp: float
+    distance_m: float
+
+
+@dataclass(frozen=True)
 class WheelOdometry:
     """Wheel speeds (m/s, one per wheel) and, when known, body forward speed and yaw rate."""
 

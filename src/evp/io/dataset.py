@@ -12,9 +12,9 @@ import numpy as np
 
 from evp.errors import DatasetError
 from evp.io.trajectory import Trajectory
-from evp.types import BaroSample, CameraModel, Frame, GpsFix, ImuSample, WheelOdometry, WifiScan
+from evp.types import BaroSample, CameraModel, Frame, GpsFix, ImuSample, RangeSample, WheelOdometry, WifiScan
 
-TelemetryRecord = ImuSample | GpsFix | BaroSample | WheelOdometry | WifiScan
+TelemetryRecord = ImuSample | GpsFix | BaroSample | WheelOdometry | WifiScan | RangeSample
 
 
 @dataclass
@@ -36,6 +36,7 @@ class Dataset:
     baro: list[BaroSample] = field(default_factory=list)
     wheel: list[WheelOdometry] = field(default_factory=list)
     wifi: list[WifiScan] = field(default_factory=list)
+    ranges: list[RangeSample] = field(default_factory=list)
     ground_truth: Trajectory | None = None
     ground_truth_note: str = ""
     trajectories: dict[str, Trajectory] = field(default_factory=dict)
@@ -57,7 +58,7 @@ class Dataset:
 
     def telemetry(self) -> Iterator[TelemetryRecord]:
         """All non-image samples merged in time order."""
-        streams = [self.imu, self.gps, self.baro, self.wheel, self.wifi]
+        streams = [self.imu, self.gps, self.baro, self.wheel, self.wifi, self.ranges]
         return heapq.merge(*streams, key=lambda record: record.timestamp)
 
     def stream(self) -> Iterator[Frame | TelemetryRecord]:
@@ -73,6 +74,7 @@ class Dataset:
             "baro": len(self.baro),
             "wheel": len(self.wheel),
             "wifi": len(self.wifi),
+            "range": len(self.ranges),
         }
         return {name: count for name, count in counts.items() if count}
 

@@ -20,8 +20,8 @@ def summarise(dataset: Dataset) -> dict:
         t = dataset.frame_times
         out.update(start_s=float(t[0]), duration_s=float(t[-1] - t[0]), rate_hz=_rate(t))
     sensors = {}
-    for name in ("imu", "gps", "baro", "wheel", "wifi"):
-        records = getattr(dataset, name)
+    for name, attribute in (("imu", "imu"), ("gps", "gps"), ("baro", "baro"), ("wheel", "wheel"), ("wifi", "wifi"), ("range", "ranges")):
+        records = getattr(dataset, attribute)
         if records:
             stamps = np.array([r.timestamp for r in records])
             sensors[name] = {"samples": len(records), "rate_hz": _rate(stamps), "duration_s": float(stamps[-1] - stamps[0])}

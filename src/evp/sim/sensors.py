@@ -7,13 +7,14 @@ sensor's noise. Defaults are typical phone / small-drone values; the docstrings 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import pymap3d
 from pydantic import BaseModel, ConfigDict, Field
 
 from evp.sim.motion import MotionState
-from evp.types import BaroSample, GpsFix, ImuSample, WheelOdometry, WifiScan
+from evp.types import BaroSample, GpsFix, ImuSample, RangeSample, WheelOdometry, WifiScan
 
 
 class _Config(BaseModel):
@@ -98,14 +99,22 @@ def sample_times(start: float, end: float, rate_hz: float) -> np.ndarray:
     return start + np.arange(0.0, end - start + 1e-9, 1.0 / rate_hz)
 
 
-def simulate_imu(state: MotionState, config: ImuConfig, rng: np.random.Generator) -> list[ImuSample]:
+@dataclass(frozen=True)
+class ImuSimulation:
+    samples: list[ImuSample]
+    gyro_bias: np.ndarray  # (N, 3) true bias at each sample, rad/s
+    accel_bias: np.ndarray  # (N, 3) m/s^2
+
+
+def simulate_imu(state: MotionState, config: ImuConfig, rng: np.random.Generator) -> ImuSimulation:
     n = len(state.time)
     dt = 1.0 / config.rate_hz
     gyro_bias = rng.normal(0, config.gyro_bias_sigma, 3) + np.cumsum(rng.normal(0, config.gyro_random_walk * math.sqrt(dt), (n, 3)), axis=0)
     accel_bias = rng.normal(0, config.accel_bias_sigma, 3) + np.cumsum(rng.normal(0, config.accel_random_walk * math.sqrt(dt), (n, 3)), axis=0)
     gyro = state.body_rate + gyro_bias + rng.normal(0, config.gyro_noise_density / math.sqrt(dt), (n, 3))
     accel = state.specific_force_body() + accel_bias + rng.normal(0, config.accel_noise_density / math.sqrt(dt), (n, 3))
-    return [ImuSample(float(t), tuple(map(float, g)), tuple(map(float, a))) for t, g, a in zip(state.time, gyro, accel)]
+    samples = [ImuSample(float(t), tuple(map(float, g)), tuple(map(float, a))) for t, g, a in zip(state.time, gyro, accel)]
+    return ImuSimulation(samples, gyro_bias, accel_bias)
 
 
 def gps_errors(times: np.ndarray, config: GpsConfig, rng: np.random.Generator) -> np.ndarray:
@@ -179,3 +188,14 @@ def simulate_wifi(state: MotionState, config: WifiConfig, access_points: np.ndar
         rss = config.p0_dbm - 10 * config.path_loss_exponent * np.log10(distance) + rng.normal(0, config.shadowing_db, len(distance))
         scans.append(WifiScan(float(t), {f"02:00:00:00:00:{i:02x}": float(r) for i, r in enumerate(rss)}))
     return scans
+
+
+def simulate_range(state: MotionState, config: RangeConfig, distance_along_down, rng: np.random.Generator) -> list[RangeSample]:
+    """``distance_along_down(position, direction)`` gives the true distance to the scene."""
+    down = state.rotation.apply(np.array([0.0, 0.0, -1.0]))
+    samples = []
+    for t, p, d in zip(state.time, state.position, down):
+        distance = distance_along_down(p, d)
+        reading = distance + rng.normal(0, config.noise_m) if distance <= config.max_range_m else float("nan")
+        samples.append(RangeSample(float(t), float(reading)))
+    return samples

@@ -11,7 +11,7 @@ from evp.errors import DatasetError
 from evp.io.dataset import Dataset, check_increasing, image_file_frames
 from evp.io.text_tables import read_named_lines, read_table
 from evp.io.trajectory import Trajectory, read_trajectory
-from evp.types import ImuSample
+from evp.types import BaroSample, GpsFix, ImuSample, RangeSample, WheelOdometry, WifiScan
 
 
 def _mav0(path: Path) -> Path:
@@ -49,6 +49,7 @@ class EurocReader:
         if imu_csv.is_file():
             rows, _, _ = read_table(imu_csv, columns=7)
             dataset.imu = [ImuSample(t / 1e9, tuple(r[1:4]), tuple(r[4:7])) for t, r in zip(rows[:, 0], rows)]
+        self._extra_sensors(mav0, dataset)
         self._ground_truth(mav0, root, dataset)
         leica = mav0 / "leica0" / "data.csv"
         if leica.is_file():
@@ -56,6 +57,24 @@ class EurocReader:
             quats = np.tile([0.0, 0.0, 0.0, 1.0], (len(rows), 1))
             dataset.trajectories["leica0_prism_positions"] = Trajectory(rows[:, 1:4], quats, rows[:, 0] / 1e9, "leica0")
         return dataset
+
+    @staticmethod
+    def _extra_sensors(mav0: Path, dataset: Dataset) -> None:
+        """Sensors EuRoC lacks, in the same CSV style (written by ``evp sim``; see docs/simulator.md)."""
+        if (mav0 / "gps0" / "data.csv").is_file():
+            rows, _, _ = read_table(mav0 / "gps0" / "data.csv", columns=6)
+            dataset.gps = [GpsFix(r[0] / 1e9, *map(float, r[1:6])) for r in rows]
+        if (mav0 / "baro0" / "data.csv").is_file():
+            rows, _, _ = read_table(mav0 / "baro0" / "data.csv", columns=3)
+            dataset.baro = [BaroSample(r[0] / 1e9, float(r[1]), float(r[2])) for r in rows]
+        if (mav0 / "range0" / "data.csv").is_file():
+            rows, _, _ = read_table(mav0 / "range0" / "data.csv", columns=2)
+            dataset.ranges = [RangeSample(r[0] / 1e9, float(r[1])) for r in rows]
+        if (mav0 / "wheel0" / "data.csv").is_file():
+            rows, _, _ = read_table(mav0 / "wheel0" / "data.csv", columns=5)
+            dataset.wheel = [WheelOdometry(r[0] / 1e9, (float(r[1]), float(r[2])), float(r[3]), float(r[4])) for r in rows]
+        if (mav0 / "wifi0" / "data.csv").is_file():
+            dataset.wifi = read_wifi_csv(mav0 / "wifi0" / "data.csv")
 
     def _ground_truth(self, mav0: Path, root: Path, dataset: Dataset) -> None:
         """Camera GT: body GT times cam0 extrinsics when the standard CSV exists, else a cam0 TUM file."""
@@ -70,3 +89,18 @@ class EurocReader:
         if candidates:
             dataset.ground_truth = read_trajectory(candidates[0])
             dataset.ground_truth_note = f"{candidates[0].name}: T_world_cam0"
+
+
+def read_wifi_csv(path: Path) -> list[WifiScan]:
+    """``timestamp_ns,bssid,rssi`` rows, grouped into one scan per timestamp."""
+    scans: dict[int, dict[str, float]] = {}
+    for number, line in enumerate(path.read_text().splitlines(), start=1):
+        if not line.strip() or line.startswith("#"):
+            continue
+        fields = line.split(",")
+        try:
+            stamp, bssid, rssi = int(fields[0]), fields[1].strip(), float(fields[2])
+        except (ValueError, IndexError) as exc:
+            raise DatasetError(path, f"expected 'timestamp_ns,bssid,rssi': {exc}", line=number) from exc
+        scans.setdefault(stamp, {})[bssid] = rssi
+    return [WifiScan(stamp / 1e9, rssi) for stamp, rssi in sorted(scans.items())]

@@ -118,6 +118,7 @@ def sim(
     rolling_shutter: float = typer.Option(0.0, "--rolling-shutter", help="Row readout time (s); 0 = global shutter."),
     drop: float = typer.Option(0.0, "--drop", help="Probability of dropping a frame."),
     noise: float = typer.Option(2.0, "--noise", help="Image read noise (grey levels)."),
+    image_format: str = typer.Option("jpg", "--image-format", help="jpg (quality 95, as a phone streams) or png (lossless)."),
     gps_offset: float = typer.Option(0.0, "--gps-clock-offset", help="GPS clock minus camera clock (s)."),
     spoof_start: float | None = typer.Option(None, "--spoof-start", help="Seconds into the run when GPS spoofing starts."),
     spoof_mode: str = typer.Option("pull", "--spoof-mode", help="pull (gradual) or jump."),
@@ -141,7 +142,7 @@ def sim(
     from evp.sim.generate import generate
 
     options = options_from_cli(config, duration=duration, seed=seed, fps=fps, camera=camera, texture=texture, altitude_m=altitude, speed_m_s=speed,
-                               pattern=pattern, gimbal=gimbal, relief=relief, rolling_shutter_s=rolling_shutter, drop_probability=drop, noise_sigma=noise,
+                               pattern=pattern, gimbal=gimbal, relief=relief, rolling_shutter_s=rolling_shutter, drop_probability=drop, noise_sigma=noise, image_format=image_format,
                                gps_clock_offset_s=gps_offset, spoof_start_s=spoof_start, spoof_mode=spoof_mode, spoof_rate_m_s=spoof_rate,
                                spoof_jump_m=spoof_jump, outages=outage)
     with Progress(transient=True) as progress:

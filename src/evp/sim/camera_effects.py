@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 
 from evp.sim.scenarios import Scenario, SimOptions
@@ -43,9 +44,11 @@ def render_frame(renderer: Renderer, scenario: Scenario, t: float, options: SimO
         else:
             image = renderer.render(scenario.camera_poses(np.array([t + offset]))[0])
         accumulated += image
-    image = accumulated / len(np.atleast_1d(offsets)) * exposure_gain(t, options, options.seed)
-    rng = np.random.default_rng(frame_seed)
-    sigma = np.sqrt(options.noise_sigma**2 + np.maximum(image, 0) / ELECTRONS_PER_GREY_LEVEL) if options.noise_sigma > 0 else 0.0
+    image = accumulated * np.float32(exposure_gain(t, options, options.seed) / len(np.atleast_1d(offsets)))
     if options.noise_sigma > 0:
-        image = image + rng.standard_normal(image.shape).astype(np.float32) * sigma
+        # read noise + shot noise; OpenCV's generator (seeded per frame) is 3x faster than NumPy's here
+        noise = np.empty_like(image)
+        cv2.setRNGSeed(frame_seed)
+        cv2.randn(noise, 0.0, 1.0)
+        image += noise * np.sqrt(np.float32(options.noise_sigma**2) + np.maximum(image, 0) / np.float32(ELECTRONS_PER_GREY_LEVEL))
     return np.clip(image + 0.5, 0, 255).astype(np.uint8)

@@ -25,7 +25,7 @@ from evp.sim.scenarios import Scenario, SimOptions, build_scenario
 from evp.sim.world import Renderer, ray_distance
 
 EPOCH_S = 1_700_000_000  # simulated clocks start here (2023-11-14), like real sensor clocks
-PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 1]
+IMAGE_PARAMS = {"png": [cv2.IMWRITE_PNG_COMPRESSION, 1], "jpg": [cv2.IMWRITE_JPEG_QUALITY, 95]}
 
 
 @dataclass
@@ -51,7 +51,7 @@ def _render_chunk(task: tuple[list[int], list[float], str]) -> int:
     renderer = _WORKER.setdefault("renderer", Renderer(scenario.camera, scenario.scene))
     for index, t in zip(indices, times):
         image = render_frame(renderer, scenario, t, options, frame_seed=options.seed * 1_000_003 + index)
-        cv2.imwrite(os.path.join(folder, f"{_ns(t)}.png"), image, PNG_PARAMS)
+        cv2.imwrite(os.path.join(folder, f"{_ns(t)}.{options.image_format}"), image, IMAGE_PARAMS[options.image_format])
     return len(indices)
 
 
@@ -119,7 +119,7 @@ def generate(name: str, options: SimOptions, out: Path, workers: int = 2, progre
     if on_start:
         on_start(len(indices))
     _render_images(scenario, options, indices, times, image_dir, workers, progress)
-    _write_csv(mav0 / "cam0" / "data.csv", "#timestamp [ns],filename", [[int(n), f"{n}.png"] for n in _ns(times)])
+    _write_csv(mav0 / "cam0" / "data.csv", "#timestamp [ns],filename", [[int(n), f"{n}.{options.image_format}"] for n in _ns(times)])
     (mav0 / "cam0" / "sensor.yaml").write_text(_camera_yaml(scenario, options))
 
     # ground truth of the body at the IMU rate, and of the camera at every written frame

@@ -51,6 +51,7 @@ class SimOptions(BaseModel):
     noise_sigma: float = Field(2.0, ge=0, description="read noise (grey levels); shot noise is added too")
     rolling_shutter_s: float = Field(0.0, ge=0, description="row readout time top to bottom; 0 = global shutter")
     drop_probability: float = Field(0.0, ge=0, lt=1)
+    image_format: str = Field("jpg", pattern="^(jpg|png)$", description="jpg (quality 95, what a phone streams) or png (lossless, 5x slower to write)")
     imu: ImuConfig = ImuConfig()
     gps: GpsConfig = GpsConfig()
     baro: BaroConfig = BaroConfig()

@@ -104,15 +104,16 @@ class Renderer:
     def render(self, T_world_cam: np.ndarray, row_poses: np.ndarray | None = None) -> np.ndarray:
         """Grey uint8 image. ``row_poses`` (H, 4, 4) gives each row its own pose (rolling shutter)."""
         if row_poses is None:
-            rays_world = self._rays @ T_world_cam[:3, :3].T.astype(np.float32)
+            # rays stay in the camera frame; the rotation is folded into each quad's frame below
+            rays, rotation = self._rays, T_world_cam[:3, :3]
             centres = T_world_cam[:3, 3].reshape(1, 1, 3)
             poses = [T_world_cam]
         else:
-            rays_world = np.einsum("hij,hwj->hwi", row_poses[:, :3, :3].astype(np.float32), self._rays)
+            rays, rotation = np.einsum("hij,hwj->hwi", row_poses[:, :3, :3].astype(np.float32), self._rays), np.eye(3)
             centres = row_poses[:, None, :3, 3]
             poses = [row_poses[0], row_poses[-1]]
         windows = {i: self._window(poses, quad) for i, quad in enumerate(self.scene.quads)}
-        return self._shade(rays_world, centres, {i: w for i, w in windows.items() if w is not None})
+        return self._shade(rays, rotation, centres, {i: w for i, w in windows.items() if w is not None})
 
     def _window(self, poses: list[np.ndarray], quad: TexturedQuad) -> tuple[int, int, int, int] | None:
         """Image rows/columns (r0, r1, c0, c1) the quad can cover, None when it is out of view.
@@ -139,9 +140,10 @@ class Renderer:
             window = (max(0, window[0] - pad), min(self.camera.height, window[1] + pad), max(0, window[2] - pad), min(self.camera.width, window[3] + pad))
         return window
 
-    def _shade(self, rays: np.ndarray, centres: np.ndarray, windows: dict[int, tuple[int, int, int, int]]) -> np.ndarray:
+    def _shade(self, rays: np.ndarray, rotation: np.ndarray, centres: np.ndarray, windows: dict[int, tuple[int, int, int, int]]) -> np.ndarray:
         """Nearest hit per pixel. For a quad with frame M = [n u v], a ray c + t r hits the plane at
         t = -(c - o).n / r.n, with surface coordinates (c - o).u + t r.u and (c - o).v + t r.v.
+        ``rays`` are rotated to the world by ``rotation`` (so r.M = rays @ (rotation^T M)).
         Each quad is traced only inside its image window."""
         shape = rays.shape[:2]
         depth = np.full(shape, np.inf, dtype=np.float32)
@@ -150,7 +152,7 @@ class Renderer:
         for index, (r0, r1, c0, c1) in windows.items():
             quad = self.scene.quads[index]
             frame = np.stack([quad.normal, quad.axis_u, quad.axis_v], axis=1)
-            along = rays[r0:r1, c0:c1] @ frame.astype(np.float32)  # r.n, r.u, r.v
+            along = rays[r0:r1, c0:c1] @ (rotation.T @ frame).astype(np.float32)  # r.n, r.u, r.v
             offset = ((centres[r0:r1] if centres.shape[0] > 1 else centres) - quad.origin) @ frame  # (c - o).n, .u, .v
             offset = offset.astype(np.float32)
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -158,7 +160,9 @@ class Renderer:
             a = offset[..., 1] + t * along[..., 1]
             b = offset[..., 2] + t * along[..., 2]
             window_depth = depth[r0:r1, c0:c1]
-            visible = (t > 1e-6) & (t < window_depth) & (a >= 0) & (a <= quad.size_u) & (b >= 0) & (b <= quad.size_v)
+            visible = (t > 1e-6) & (a >= 0) & (a <= quad.size_u) & (b >= 0) & (b <= quad.size_v)
+            if hits:  # the first quad traced competes with nothing yet
+                visible &= t < window_depth
             if visible.any():
                 window_depth[visible] = t[visible]
                 owner[r0:r1, c0:c1][visible] = index

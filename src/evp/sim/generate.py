@@ -40,33 +40,40 @@ def _ns(t: np.ndarray | float) -> np.ndarray:
     return np.round((np.asarray(t, dtype=np.float64) + EPOCH_S) * 1e9).astype(np.int64)
 
 
-# --- images, rendered by worker processes that inherit the scene (fork) ---------------------------
+# --- images, rendered by worker processes that rebuild the (seeded, deterministic) scenario ------------
 
 _WORKER: dict = {}
 
 
+def _init_worker(name: str, options: SimOptions, single_threaded: bool) -> None:
+    if single_threaded:
+        cv2.setNumThreads(1)  # one process per core already: OpenCV's own threads would only contend
+    scenario = build_scenario(name, options)
+    _WORKER.update(scenario=scenario, options=options, renderer=Renderer(scenario.camera, scenario.scene))
+
+
 def _render_chunk(task: tuple[list[int], list[float], str]) -> int:
     indices, times, folder = task
-    scenario, options = _WORKER["scenario"], _WORKER["options"]
-    renderer = _WORKER.setdefault("renderer", Renderer(scenario.camera, scenario.scene))
+    scenario, options, renderer = _WORKER["scenario"], _WORKER["options"], _WORKER["renderer"]
     for index, t in zip(indices, times):
         image = render_frame(renderer, scenario, t, options, frame_seed=options.seed * 1_000_003 + index)
         cv2.imwrite(os.path.join(folder, f"{_ns(t)}.{options.image_format}"), image, IMAGE_PARAMS[options.image_format])
     return len(indices)
 
 
-def _render_images(scenario: Scenario, options: SimOptions, indices: list[int], times: np.ndarray, folder: Path, workers: int, progress: Callable[[int], None] | None) -> None:
-    _WORKER.clear()
-    _WORKER.update(scenario=scenario, options=options)
+def _render_images(name: str, scenario: Scenario, options: SimOptions, indices: list[int], times: np.ndarray, folder: Path, workers: int, progress: Callable[[int], None] | None) -> None:
     chunk = 25
     tasks = [(indices[i : i + chunk], list(times[i : i + chunk]), str(folder)) for i in range(0, len(indices), chunk)]
     if workers <= 1:
+        _WORKER.update(scenario=scenario, options=options, renderer=Renderer(scenario.camera, scenario.scene))
         for task in tasks:
             done = _render_chunk(task)
             if progress:
                 progress(done)
+        _WORKER.clear()
         return
-    with multiprocessing.get_context("fork").Pool(workers) as pool:
+    # spawned (not forked) workers: forking a process whose OpenCV thread pool is running can deadlock
+    with multiprocessing.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(name, options, True)) as pool:
         for done in pool.imap(_render_chunk, tasks):
             if progress:
                 progress(done)
@@ -118,7 +125,7 @@ def generate(name: str, options: SimOptions, out: Path, workers: int = 2, progre
     image_dir.mkdir(parents=True, exist_ok=True)
     if on_start:
         on_start(len(indices))
-    _render_images(scenario, options, indices, times, image_dir, workers, progress)
+    _render_images(name, scenario, options, indices, times, image_dir, workers, progress)
     _write_csv(mav0 / "cam0" / "data.csv", "#timestamp [ns],filename", [[int(n), f"{n}.{options.image_format}"] for n in _ns(times)])
     (mav0 / "cam0" / "sensor.yaml").write_text(_camera_yaml(scenario, options))
 

@@ -41,9 +41,11 @@ class TexturedQuad:
             raise ValueError(f"quad {self.name!r}: axes must be orthonormal")
         if self.texture.ndim != 2 or self.texture.dtype != np.uint8:
             raise ValueError(f"quad {self.name!r}: texture must be a grey uint8 image")
+        # area-averaged halvings keep texel edges aligned (pyrDown would shift them by a quarter texel)
         self._mips = [self.texture]
         while min(self._mips[-1].shape) > 8:
-            self._mips.append(cv2.pyrDown(self._mips[-1]))
+            height, width = self._mips[-1].shape
+            self._mips.append(cv2.resize(self._mips[-1], (width // 2, height // 2), interpolation=cv2.INTER_AREA))
 
     @property
     def normal(self) -> np.ndarray:
@@ -163,7 +165,11 @@ class Renderer:
             visible = (t > 1e-6) & (a >= 0) & (a <= quad.size_u) & (b >= 0) & (b <= quad.size_v)
             if hits:  # the first quad traced competes with nothing yet
                 visible &= t < window_depth
-            if visible.any():
+            if visible.all():  # common case (the ground filling the view): no masked writes
+                window_depth[...] = t
+                owner[r0:r1, c0:c1] = index
+                hits[index] = (a, b, t, along[..., 0])
+            elif visible.any():
                 window_depth[visible] = t[visible]
                 owner[r0:r1, c0:c1][visible] = index
                 hits[index] = (a, b, t, along[..., 0])

@@ -101,6 +101,11 @@ class Renderer:
         self._fov_lo = xy.min(axis=0)
         self._fov_hi = xy.max(axis=0)
         self._row_lo, self._row_hi = grid[..., 1].min(axis=1), grid[..., 1].max(axis=1)
+        lo, hi = self._fov_lo, self._fov_hi
+        normals = np.array([[1.0, 0.0, -lo[0]], [-1.0, 0.0, hi[0]], [0.0, 1.0, -lo[1]], [0.0, -1.0, hi[1]]])
+        self._frustum_normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+        self._sphere_centres = np.array([q.origin + 0.5 * (q.size_u * q.axis_u + q.size_v * q.axis_v) for q in scene.quads]).reshape(-1, 3)
+        self._sphere_radii = np.array([0.5 * np.hypot(q.size_u, q.size_v) for q in scene.quads])
         self._col_lo, self._col_hi = grid[..., 0].min(axis=0), grid[..., 0].max(axis=0)
 
     def render(self, T_world_cam: np.ndarray, row_poses: np.ndarray | None = None) -> np.ndarray:
@@ -114,8 +119,21 @@ class Renderer:
             rays, rotation = np.einsum("hij,hwj->hwi", row_poses[:, :3, :3].astype(np.float32), self._rays), np.eye(3)
             centres = row_poses[:, None, :3, 3]
             poses = [row_poses[0], row_poses[-1]]
-        windows = {i: self._window(poses, quad) for i, quad in enumerate(self.scene.quads)}
+        candidates = self._in_view(poses)
+        windows = {i: self._window(poses, self.scene.quads[i]) for i in candidates}
         return self._shade(rays, rotation, centres, {i: w for i, w in windows.items() if w is not None})
+
+    def _in_view(self, poses: list[np.ndarray]) -> np.ndarray:
+        """Indices of quads whose bounding sphere touches the (padded) viewing frustum of any pose:
+        a vectorised first cut before the exact per-quad clipping."""
+        keep = np.zeros(len(self._sphere_centres), bool)
+        for T in poses:
+            local = (self._sphere_centres - T[:3, 3]) @ T[:3, :3]
+            inside = local[:, 2] > -self._sphere_radii
+            for normal in self._frustum_normals:  # planes through the camera centre, normals point inwards
+                inside &= local @ normal > -self._sphere_radii
+            keep |= inside
+        return np.flatnonzero(keep)
 
     def _window(self, poses: list[np.ndarray], quad: TexturedQuad) -> tuple[int, int, int, int] | None:
         """Image rows/columns (r0, r1, c0, c1) the quad can cover, None when it is out of view.

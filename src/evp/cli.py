@@ -141,14 +141,35 @@ def sim(
     from evp.sim.cli_support import options_from_cli
     from evp.sim.generate import generate
 
-    options = options_from_cli(config, duration=duration, seed=seed, fps=fps, camera=camera, texture=texture, altitude_m=altitude, speed_m_s=speed,
-                               pattern=pattern, gimbal=gimbal, relief=relief, rolling_shutter_s=rolling_shutter, drop_probability=drop, noise_sigma=noise, image_format=image_format,
-                               gps_clock_offset_s=gps_offset, spoof_start_s=spoof_start, spoof_mode=spoof_mode, spoof_rate_m_s=spoof_rate,
-                               spoof_jump_m=spoof_jump, outages=outage)
+    options = options_from_cli(
+        config,
+        duration=duration,
+        seed=seed,
+        fps=fps,
+        camera=camera,
+        texture=texture,
+        altitude_m=altitude,
+        speed_m_s=speed,
+        pattern=pattern,
+        gimbal=gimbal,
+        relief=relief,
+        rolling_shutter_s=rolling_shutter,
+        drop_probability=drop,
+        noise_sigma=noise,
+        image_format=image_format,
+        gps_clock_offset_s=gps_offset,
+        spoof_start_s=spoof_start,
+        spoof_mode=spoof_mode,
+        spoof_rate_m_s=spoof_rate,
+        spoof_jump_m=spoof_jump,
+        outages=outage,
+    )
     with Progress(transient=True) as progress:
         task = progress.add_task(f"{scenario}", total=None)
         result = generate(scenario, options, out, workers, lambda n: progress.advance(task, n), lambda total: progress.update(task, total=total))
-    typer.echo(f"{scenario}: {result.frames} frames ({len(result.dropped)} dropped), {result.scenario.motion.duration:.1f} s, sensors {', '.join(result.scenario.sensors)} -> {out}")
+    typer.echo(
+        f"{scenario}: {result.frames} frames ({len(result.dropped)} dropped), {result.scenario.motion.duration:.1f} s, sensors {', '.join(result.scenario.sensors)} -> {out}"
+    )
 
 
 @app.command()

@@ -61,8 +61,33 @@ def test_camera_ground_truth_matches_body_ground_truth_times_extrinsics(tmp_path
 
 def test_command_line_generation_with_events_then_info_and_run(tmp_path):
     out = tmp_path / "flight"
-    result = evp("sim", "drone-flight", "--out", out, "--duration", 8, "--seed", 2, "--flat", "--altitude", 30, "--fps", 15,
-                 "--drop", 0.2, "--spoof-start", 4, "--spoof-mode", "jump", "--gps-outage", "1:2", "--gps-clock-offset", 0.3, "--workers", 2)
+    result = evp(
+        "sim",
+        "drone-flight",
+        "--out",
+        out,
+        "--duration",
+        8,
+        "--seed",
+        2,
+        "--flat",
+        "--altitude",
+        30,
+        "--fps",
+        15,
+        "--drop",
+        0.2,
+        "--spoof-start",
+        4,
+        "--spoof-mode",
+        "jump",
+        "--gps-outage",
+        "1:2",
+        "--gps-clock-offset",
+        0.3,
+        "--workers",
+        2,
+    )
     assert result.returncode == 0, result.stderr
     described = yaml.safe_load((out / "sim.yaml").read_text())
     assert described["dropped_frames"] and described["frames"] == 121 - len(described["dropped_frames"])

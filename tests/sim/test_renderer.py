@@ -65,15 +65,17 @@ def _matches(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return points.reshape(-1, 2)[good], moved.reshape(-1, 2)[good]
 
 
-def test_two_views_of_a_3d_room_obey_the_epipolar_geometry_of_their_poses():
-    options = SimOptions(noise_sigma=0.0, exposure_s=0.0, gain_variation=0.0)
-    scenario = build_scenario("wheel-robot-room", options)
+def _two_views(name: str, times: tuple[float, float], **options):
+    """Ground-truth poses and KLT matches (normalised, undistorted) between two noise-free renders."""
+    scenario = build_scenario(name, SimOptions(noise_sigma=0.0, exposure_s=0.0, gain_variation=0.0, **options))
     renderer = Renderer(scenario.camera, scenario.scene)
-    poses = scenario.camera_poses(np.array([10.0, 10.4]))
-    first, second = (renderer.render(T) for T in poses)
-    p0, p1 = _matches(first, second)
-    x0 = scenario.camera.undistort_points(p0)
-    x1 = scenario.camera.undistort_points(p1)
+    poses = scenario.camera_poses(np.array(times))
+    p0, p1 = _matches(*(renderer.render(T) for T in poses))
+    return scenario, poses, scenario.camera.undistort_points(p0), scenario.camera.undistort_points(p1)
+
+
+def test_two_views_of_a_3d_room_obey_the_epipolar_geometry_of_their_poses():
+    scenario, poses, x0, x1 = _two_views("wheel-robot-room", (10.0, 10.4))
     T_10 = np.linalg.inv(poses[1]) @ poses[0]  # camera 0 -> camera 1
     t = T_10[:3, 3]
     E = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]]) @ T_10[:3, :3]
@@ -90,14 +92,7 @@ def test_two_views_of_a_3d_room_obey_the_epipolar_geometry_of_their_poses():
 
 
 def test_two_views_of_the_ground_obey_the_plane_homography():
-    options = SimOptions(noise_sigma=0.0, exposure_s=0.0, gain_variation=0.0, relief=False, duration_s=60.0)
-    scenario = build_scenario("drone-flight", options)
-    renderer = Renderer(scenario.camera, scenario.scene)
-    poses = scenario.camera_poses(np.array([40.0, 40.5]))
-    first, second = (renderer.render(T) for T in poses)
-    p0, p1 = _matches(first, second)
-    x0 = scenario.camera.undistort_points(p0)
-    x1 = scenario.camera.undistort_points(p1)
+    scenario, poses, x0, x1 = _two_views("drone-flight", (40.0, 40.5), relief=False, duration_s=60.0)
     # plane z = 0 seen from camera 0: n^T X = d in camera-0 coordinates
     R0, c0 = poses[0][:3, :3], poses[0][:3, 3]
     n = R0.T @ np.array([0.0, 0.0, 1.0])

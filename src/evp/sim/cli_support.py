@@ -18,8 +18,18 @@ def _outage(text: str) -> tuple[float, float]:
     return start, duration
 
 
-def options_from_cli(config: Path | None, *, gps_clock_offset_s: float, spoof_start_s: float | None, spoof_mode: str, spoof_rate_m_s: float,
-                     spoof_jump_m: float, outages: list[str], duration: float | None, **flags) -> SimOptions:
+def options_from_cli(
+    config: Path | None,
+    *,
+    gps_clock_offset_s: float,
+    spoof_start_s: float | None,
+    spoof_mode: str,
+    spoof_rate_m_s: float,
+    spoof_jump_m: float,
+    outages: list[str],
+    duration: float | None,
+    **flags,
+) -> SimOptions:
     """Flags override the YAML file, which overrides the defaults."""
     data: dict = {}
     if config is not None:
@@ -29,7 +39,9 @@ def options_from_cli(config: Path | None, *, gps_clock_offset_s: float, spoof_st
     data.update({k: v for k, v in flags.items() if v is not None})
     data["duration_s"] = duration if duration is not None else data.get("duration_s")
     gps = dict(data.get("gps", {}))
-    gps.update(clock_offset_s=gps_clock_offset_s or gps.get("clock_offset_s", 0.0), spoof_mode=spoof_mode, spoof_rate_m_s=spoof_rate_m_s, spoof_jump_m=spoof_jump_m)
+    gps.update(
+        clock_offset_s=gps_clock_offset_s or gps.get("clock_offset_s", 0.0), spoof_mode=spoof_mode, spoof_rate_m_s=spoof_rate_m_s, spoof_jump_m=spoof_jump_m
+    )
     if spoof_start_s is not None:
         gps["spoof_start_s"] = spoof_start_s
     if outages:

@@ -61,7 +61,16 @@ def _render_chunk(task: tuple[list[int], list[float], str]) -> int:
     return len(indices)
 
 
-def _render_images(name: str, scenario: Scenario, options: SimOptions, indices: list[int], times: np.ndarray, folder: Path, workers: int, progress: Callable[[int], None] | None) -> None:
+def _render_images(
+    name: str,
+    scenario: Scenario,
+    options: SimOptions,
+    indices: list[int],
+    times: np.ndarray,
+    folder: Path,
+    workers: int,
+    progress: Callable[[int], None] | None,
+) -> None:
     chunk = 25
     tasks = [(indices[i : i + chunk], list(times[i : i + chunk]), str(folder)) for i in range(0, len(indices), chunk)]
     if workers <= 1:
@@ -110,7 +119,9 @@ def _camera_yaml(scenario: Scenario, options: SimOptions) -> str:
     )
 
 
-def generate(name: str, options: SimOptions, out: Path, workers: int = 2, progress: Callable[[int], None] | None = None, on_start: Callable[[int], None] | None = None) -> SimResult:
+def generate(
+    name: str, options: SimOptions, out: Path, workers: int = 2, progress: Callable[[int], None] | None = None, on_start: Callable[[int], None] | None = None
+) -> SimResult:
     """Build the scenario, render its frames and sample every sensor into ``out``."""
     scenario = build_scenario(name, options)
     rng = np.random.default_rng(options.seed)
@@ -134,16 +145,28 @@ def generate(name: str, options: SimOptions, out: Path, workers: int = 2, progre
     imu_state = scenario.motion.state(imu_times)
     imu = sensors.simulate_imu(imu_state, options.imu, np.random.default_rng([options.seed, 1]))
     q = imu_state.rotation.as_quat()
-    gt_rows = [[int(n), *map(float, p), float(qq[3]), float(qq[0]), float(qq[1]), float(qq[2]), *map(float, v), *map(float, bw), *map(float, ba)]
-               for n, p, qq, v, bw, ba in zip(_ns(imu_times), imu_state.position, q, imu_state.velocity, imu.gyro_bias, imu.accel_bias)]
-    _write_csv(mav0 / "state_groundtruth_estimate0" / "data.csv",
-               "#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z [],v_RS_R_x [m s^-1],v_RS_R_y [m s^-1],v_RS_R_z [m s^-1],"
-               "b_w_RS_S_x [rad s^-1],b_w_RS_S_y [rad s^-1],b_w_RS_S_z [rad s^-1],b_a_RS_S_x [m s^-2],b_a_RS_S_y [m s^-2],b_a_RS_S_z [m s^-2]", gt_rows)
+    gt_rows = [
+        [int(n), *map(float, p), float(qq[3]), float(qq[0]), float(qq[1]), float(qq[2]), *map(float, v), *map(float, bw), *map(float, ba)]
+        for n, p, qq, v, bw, ba in zip(_ns(imu_times), imu_state.position, q, imu_state.velocity, imu.gyro_bias, imu.accel_bias)
+    ]
+    _write_csv(
+        mav0 / "state_groundtruth_estimate0" / "data.csv",
+        "#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z [],v_RS_R_x [m s^-1],v_RS_R_y [m s^-1],v_RS_R_z [m s^-1],"
+        "b_w_RS_S_x [rad s^-1],b_w_RS_S_y [rad s^-1],b_w_RS_S_z [rad s^-1],b_a_RS_S_x [m s^-2],b_a_RS_S_y [m s^-2],b_a_RS_S_z [m s^-2]",
+        gt_rows,
+    )
     write_trajectory(out / "groundtruth_cam0_tum.txt", Trajectory.from_poses(scenario.camera_poses(times), times + EPOCH_S))
     if "imu" in scenario.sensors:
-        _write_csv(mav0 / "imu0" / "data.csv", "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]",
-                   [[int(n), *s.angular_velocity_rad_s, *s.linear_acceleration_m_s2] for n, s in zip(_ns(imu_times), imu.samples)])
-        (mav0 / "imu0" / "sensor.yaml").write_text(yaml.safe_dump({"sensor_type": "imu", "T_BS": {"cols": 4, "rows": 4, "data": np.eye(4).ravel().tolist()}, **options.imu.model_dump()}, sort_keys=False))
+        _write_csv(
+            mav0 / "imu0" / "data.csv",
+            "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]",
+            [[int(n), *s.angular_velocity_rad_s, *s.linear_acceleration_m_s2] for n, s in zip(_ns(imu_times), imu.samples)],
+        )
+        (mav0 / "imu0" / "sensor.yaml").write_text(
+            yaml.safe_dump(
+                {"sensor_type": "imu", "T_BS": {"cols": 4, "rows": 4, "data": np.eye(4).ravel().tolist()}, **options.imu.model_dump()}, sort_keys=False
+            )
+        )
     _write_other_sensors(scenario, options, mav0)
     (out / "sim.yaml").write_text(yaml.safe_dump(_description(scenario, options, len(all_times), [int(i) for i in np.flatnonzero(~kept)]), sort_keys=False))
     return SimResult(out, scenario, len(indices), [int(i) for i in np.flatnonzero(~kept)])
@@ -157,21 +180,35 @@ def _write_other_sensors(scenario: Scenario, options: SimOptions, mav0: Path) ->
 
     if "gps" in scenario.sensors:
         fixes = sensors.simulate_gps(state(options.gps.rate_hz), options.gps, scenario.origin, np.random.default_rng([options.seed, 2]))
-        _write_csv(mav0 / "gps0" / "data.csv", "#timestamp [ns],latitude [deg],longitude [deg],altitude [m],horizontal_accuracy [m],vertical_accuracy [m]",
-                   [[int(_ns(f.timestamp)), f.latitude_deg, f.longitude_deg, f.altitude_m, f.horizontal_accuracy_m, f.vertical_accuracy_m] for f in fixes])
+        _write_csv(
+            mav0 / "gps0" / "data.csv",
+            "#timestamp [ns],latitude [deg],longitude [deg],altitude [m],horizontal_accuracy [m],vertical_accuracy [m]",
+            [[int(_ns(f.timestamp)), f.latitude_deg, f.longitude_deg, f.altitude_m, f.horizontal_accuracy_m, f.vertical_accuracy_m] for f in fixes],
+        )
     if "baro" in scenario.sensors:
         samples = sensors.simulate_baro(state(options.baro.rate_hz), options.baro, scenario.origin[2], np.random.default_rng([options.seed, 3]))
-        _write_csv(mav0 / "baro0" / "data.csv", "#timestamp [ns],pressure [Pa],altitude [m]", [[int(_ns(s.timestamp)), s.pressure_pa, s.altitude_m] for s in samples])
+        _write_csv(
+            mav0 / "baro0" / "data.csv", "#timestamp [ns],pressure [Pa],altitude [m]", [[int(_ns(s.timestamp)), s.pressure_pa, s.altitude_m] for s in samples]
+        )
     if "wheel" in scenario.sensors:
         samples = sensors.simulate_wheels(state(options.wheel.rate_hz), options.wheel, np.random.default_rng([options.seed, 4]))
-        _write_csv(mav0 / "wheel0" / "data.csv", "#timestamp [ns],left [m s^-1],right [m s^-1],forward [m s^-1],yaw_rate [rad s^-1]",
-                   [[int(_ns(s.timestamp)), *s.wheel_speeds_m_s, s.forward_speed_m_s, s.yaw_rate_rad_s] for s in samples])
+        _write_csv(
+            mav0 / "wheel0" / "data.csv",
+            "#timestamp [ns],left [m s^-1],right [m s^-1],forward [m s^-1],yaw_rate [rad s^-1]",
+            [[int(_ns(s.timestamp)), *s.wheel_speeds_m_s, s.forward_speed_m_s, s.yaw_rate_rad_s] for s in samples],
+        )
     if "range" in scenario.sensors:
-        samples = sensors.simulate_range(state(options.range.rate_hz), options.range, lambda p, d: ray_distance(scenario.scene, p, d), np.random.default_rng([options.seed, 5]))
+        samples = sensors.simulate_range(
+            state(options.range.rate_hz), options.range, lambda p, d: ray_distance(scenario.scene, p, d), np.random.default_rng([options.seed, 5])
+        )
         _write_csv(mav0 / "range0" / "data.csv", "#timestamp [ns],distance [m]", [[int(_ns(s.timestamp)), s.distance_m] for s in samples])
     if "wifi" in scenario.sensors:
         scans = sensors.simulate_wifi(state(options.wifi.rate_hz), options.wifi, scenario.access_points, np.random.default_rng([options.seed, 6]))
-        _write_csv(mav0 / "wifi0" / "data.csv", "#timestamp [ns],bssid,rssi [dBm]", [[int(_ns(s.timestamp)), bssid, rssi] for s in scans for bssid, rssi in s.rssi_dbm.items()])
+        _write_csv(
+            mav0 / "wifi0" / "data.csv",
+            "#timestamp [ns],bssid,rssi [dBm]",
+            [[int(_ns(s.timestamp)), bssid, rssi] for s in scans for bssid, rssi in s.rssi_dbm.items()],
+        )
 
 
 def _description(scenario: Scenario, options: SimOptions, rendered: int, dropped: list[int]) -> dict:

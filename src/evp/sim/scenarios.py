@@ -182,8 +182,15 @@ def drone_flight(options: SimOptions) -> Scenario:
     ground = _ground(options, "rich", half, max(0.04, altitude / camera.fx / 1.5))
     quads = [ground] + (_relief(rng, half, 25.0, options.seed) if options.relief else [])
     return Scenario(
-        "drone-flight", camera, DOWNWARD, np.array([0.0, 0.0, -0.08]), _multirotor(times, samples), Scene(quads, background=200),
-        (43.7238, 10.3966, 4.0), ("imu", "gps", "baro"), gimbal=options.gimbal,
+        "drone-flight",
+        camera,
+        DOWNWARD,
+        np.array([0.0, 0.0, -0.08]),
+        _multirotor(times, samples),
+        Scene(quads, background=200),
+        (43.7238, 10.3966, 4.0),
+        ("imu", "gps", "baro"),
+        gimbal=options.gimbal,
         notes=[f"{pattern} over {width:.0f} x {height:.0f} m at {altitude:.0f} m, {speed:.1f} m/s"],
     )
 
@@ -203,8 +210,15 @@ def _seed000_loops(options: SimOptions, name: str, area: tuple[float, float], te
     half = max(width, height) / 2 + altitude * 1.5 + 10
     ground = _ground(options, texture, half, max(0.01, altitude / camera.fx / 1.5))
     return Scenario(
-        name, camera, DOWNWARD, np.array([0.0, 0.0, -0.08]), _multirotor(times, samples), Scene([ground], background=200),
-        (3.3752, -76.5331, 980.0), ("imu", "gps", "baro"), gimbal=options.gimbal,
+        name,
+        camera,
+        DOWNWARD,
+        np.array([0.0, 0.0, -0.08]),
+        _multirotor(times, samples),
+        Scene([ground], background=200),
+        (3.3752, -76.5331, 980.0),
+        ("imu", "gps", "baro"),
+        gimbal=options.gimbal,
         notes=[f"seed 000 manual-like loops over {width} x {height} m at {altitude} m ({texture} texture)"],
     )
 
@@ -239,8 +253,15 @@ def circle_indoor(options: SimOptions) -> Scenario:
     ground = _ground(options, "floor", 6.0, 0.004)
     walls = box_quads([0, 0, 1.5], [12, 12, 3], procedural_texture("wall", (12, 3), 0.01, options.seed), 0.01, "room")
     return Scenario(
-        "circle-indoor", camera, DOWNWARD, np.zeros(3), SplineMotion(times, positions, rotation), Scene([ground] + walls),
-        (3.3752, -76.5331, 980.0), ("imu", "baro", "wifi"), access_points=np.array([[2.0, 3.0, 2.5], [-3.0, 1.0, 2.5], [0.5, -3.5, 2.5]]),
+        "circle-indoor",
+        camera,
+        DOWNWARD,
+        np.zeros(3),
+        SplineMotion(times, positions, rotation),
+        Scene([ground] + walls),
+        (3.3752, -76.5331, 980.0),
+        ("imu", "baro", "wifi"),
+        access_points=np.array([[2.0, 3.0, 2.5], [-3.0, 1.0, 2.5], [0.5, -3.5, 2.5]]),
         notes=["seed 000 indoor circle, 2.2 m diameter"],
     )
 
@@ -268,8 +289,15 @@ def wheel_robot_room(options: SimOptions) -> Scenario:
         quads += box_quads([x, y, size[2] / 2], size, procedural_texture("wall", (2.0, 2.0), 0.005, options.seed + 10 + i), 0.005, f"object{i}")
     pitch_up = Rotation.from_euler("x", -5, degrees=True).as_matrix()
     return Scenario(
-        "wheel-robot-room", camera, FORWARD @ pitch_up, np.array([0.05, 0.0, 0.2]), motion, Scene(quads),
-        (25.0330, 121.5654, 10.0), ("imu", "wheel", "wifi"), access_points=np.array([[2.8, 2.3, 2.0], [-2.8, 2.3, 2.0], [0.0, -2.3, 2.0]]),
+        "wheel-robot-room",
+        camera,
+        FORWARD @ pitch_up,
+        np.array([0.05, 0.0, 0.2]),
+        motion,
+        Scene(quads),
+        (25.0330, 121.5654, 10.0),
+        ("imu", "wheel", "wifi"),
+        access_points=np.array([[2.8, 2.3, 2.0], [-2.8, 2.3, 2.0], [0.0, -2.3, 2.0]]),
         notes=["seed 001 wheel robot in a lab room"],
     )
 
@@ -293,8 +321,15 @@ def marker_field(options: SimOptions) -> Scenario:
     samples = paths.fit_duration(paths.smooth(np.vstack([paths.hold(points[0], 1.0), samples]), 0.8), duration)
     times = np.arange(len(samples)) * paths.SAMPLE_DT
     return Scenario(
-        "marker-field", camera, DOWNWARD, np.zeros(3), _multirotor(times, samples), Scene([markers, floor] + walls),
-        (48.2082, 16.3738, 180.0), ("imu", "range"), notes=["seed 003 marker floor"],
+        "marker-field",
+        camera,
+        DOWNWARD,
+        np.zeros(3),
+        _multirotor(times, samples),
+        Scene([markers, floor] + walls),
+        (48.2082, 16.3738, 180.0),
+        ("imu", "range"),
+        notes=["seed 003 marker floor"],
     )
 
 
@@ -311,8 +346,16 @@ def hover_drift(options: SimOptions) -> Scenario:
     times = np.arange(len(samples)) * paths.SAMPLE_DT
     ground = _ground(options, "rich", 80.0, max(0.02, altitude / camera.fx / 1.5))
     return Scenario(
-        "hover-drift", camera, DOWNWARD, np.array([0.0, 0.0, -0.08]), _multirotor(times, samples), Scene([ground], background=200),
-        (43.7238, 10.3966, 4.0), ("imu", "gps", "baro"), gimbal=options.gimbal, notes=["hovering with wind drift"],
+        "hover-drift",
+        camera,
+        DOWNWARD,
+        np.array([0.0, 0.0, -0.08]),
+        _multirotor(times, samples),
+        Scene([ground], background=200),
+        (43.7238, 10.3966, 4.0),
+        ("imu", "gps", "baro"),
+        gimbal=options.gimbal,
+        notes=["hovering with wind drift"],
     )
 
 

@@ -229,8 +229,13 @@ class Renderer:
 
 def _clip_to_frustum(polygon: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray | None:
     """Sutherland-Hodgman clipping of a 3-D polygon (camera frame) to z > 0 and lo <= (x, y) / z <= hi."""
-    planes = [np.array([0.0, 0.0, 1.0, -1e-6]), np.array([1.0, 0.0, -lo[0], 0.0]), np.array([-1.0, 0.0, hi[0], 0.0]),
-              np.array([0.0, 1.0, -lo[1], 0.0]), np.array([0.0, -1.0, hi[1], 0.0])]
+    planes = [
+        np.array([0.0, 0.0, 1.0, -1e-6]),
+        np.array([1.0, 0.0, -lo[0], 0.0]),
+        np.array([-1.0, 0.0, hi[0], 0.0]),
+        np.array([0.0, 1.0, -lo[1], 0.0]),
+        np.array([0.0, -1.0, hi[1], 0.0]),
+    ]
     points = list(polygon)
     for plane in planes:
         if not points:

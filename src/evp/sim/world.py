@@ -59,6 +59,20 @@ class TexturedQuad:
 class Scene:
     quads: list[TexturedQuad]
     background: int = 0  # grey level where no surface is hit (sky, void)
+    _arrays: tuple | None = field(default=None, repr=False)
+
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        """(origins, normals, axes_u, axes_v, sizes) of all quads, for vectorised queries."""
+        if self._arrays is None:
+            q = self.quads
+            self._arrays = (
+                np.array([x.origin for x in q]),
+                np.array([x.normal for x in q]),
+                np.array([x.axis_u for x in q]),
+                np.array([x.axis_v for x in q]),
+                np.array([[x.size_u, x.size_v] for x in q]),
+            )
+        return self._arrays
 
 
 def box_quads(centre, size, texture: np.ndarray, metres_per_texel: float, name: str, inward: bool = False, skip_bottom: bool = True) -> list[TexturedQuad]:
@@ -257,15 +271,12 @@ def _clip_to_frustum(polygon: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.
 
 def ray_distance(scene: Scene, origin: np.ndarray, direction: np.ndarray) -> float:
     """Distance along a unit ``direction`` from ``origin`` to the nearest quad (inf if none)."""
-    best = np.inf
-    for quad in scene.quads:
-        along = float(direction @ quad.normal)
-        if abs(along) < 1e-12:
-            continue
-        t = -float((origin - quad.origin) @ quad.normal) / along
-        if 0 < t < best:
-            hit = origin + t * direction - quad.origin
-            a, b = float(hit @ quad.axis_u), float(hit @ quad.axis_v)
-            if 0 <= a <= quad.size_u and 0 <= b <= quad.size_v:
-                best = t
-    return best
+    origins, normals, axes_u, axes_v, sizes = scene.arrays()
+    along = normals @ direction
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = -np.einsum("ij,ij->i", origin - origins, normals) / along
+        hit = origin + t[:, None] * direction - origins
+        a = np.einsum("ij,ij->i", hit, axes_u)
+        b = np.einsum("ij,ij->i", hit, axes_v)
+    valid = (np.abs(along) > 1e-12) & (t > 0) & (a >= 0) & (a <= sizes[:, 0]) & (b >= 0) & (b <= sizes[:, 1])
+    return float(t[valid].min()) if valid.any() else float("inf")

@@ -273,7 +273,7 @@ def ray_distance(scene: Scene, origin: np.ndarray, direction: np.ndarray) -> flo
     """Distance along a unit ``direction`` from ``origin`` to the nearest quad (inf if none)."""
     origins, normals, axes_u, axes_v, sizes = scene.arrays()
     along = normals @ direction
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         t = -np.einsum("ij,ij->i", origin - origins, normals) / along
         hit = origin + t[:, None] * direction - origins
         a = np.einsum("ij,ij->i", hit, axes_u)

@@ -81,7 +81,7 @@ def run(
     dataset = open_dataset(dataset_path, fmt)
     if dataset.num_frames == 0:
         raise EvpError(f"{dataset_path}: no camera frames to run on ({dataset.format})")
-    estimator = make_estimator(camera_for(dataset, settings), settings)
+    estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
     with Progress(transient=True) as progress:
         task = progress.add_task(f"{dataset.name}", total=dataset.num_frames)
         result = run_dataset(dataset, estimator, lambda n: progress.advance(task, n))
@@ -170,6 +170,66 @@ def sim(
     typer.echo(
         f"{scenario}: {result.frames} frames ({len(result.dropped)} dropped), {result.scenario.motion.duration:.1f} s, sensors {', '.join(result.scenario.sensors)} -> {out}"
     )
+
+
+@app.command()
+def align(
+    flight: Path = typer.Argument(..., help="Dataset with images (or --trajectory), GPS and ideally a barometer."),
+    out: Path | None = typer.Option(None, "--out", help="Folder for the geo-referenced track, statistics and plots."),
+    json_out: Path | None = typer.Option(None, "--json", help="Write the horizontal error statistics as JSON."),
+    align_fraction: float | None = typer.Option(None, "--align-fraction", help="Align on this first fraction of the GPS fixes (else the configured window)."),
+    trajectory: Path | None = typer.Option(None, "--trajectory", help="Visual track (TUM, e.g. from evp run) instead of running the estimator."),
+    mode: str | None = typer.Option(None, "--mode", help="2d+baro or 3d+baro."),
+    config: Path | None = typer.Option(None, "--config", help="Settings YAML (align, gps_monitor, vo sections)."),
+) -> None:
+    """Align the visual track to GPS (seed 002), report the error against GPS after the alignment
+    phase, and check GPS for spoofing and jamming."""
+    from rich.progress import Progress
+
+    from evp.config import load_settings, write_settings
+    from evp.fusion.flight import process_flight
+    from evp.io.registry import open_dataset
+    from evp.io.trajectory import read_trajectory
+    from evp.pipeline import run_dataset
+    from evp.run_setup import camera_for, make_estimator
+
+    settings = load_settings(config)
+    if mode:
+        settings = settings.model_copy(update={"align": settings.align.model_copy(update={"mode": mode})})
+        settings = type(settings).model_validate(settings.model_dump())
+    dataset = open_dataset(flight)
+    if trajectory is not None:
+        odometry = read_trajectory(trajectory)
+    else:
+        if dataset.num_frames == 0:
+            raise EvpError(f"{flight}: no images to estimate a visual track from; give --trajectory")
+        estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
+        with Progress(transient=True) as progress:
+            task = progress.add_task(f"visual odometry {dataset.name}", total=dataset.num_frames)
+            odometry = run_dataset(dataset, estimator, lambda n: progress.advance(task, n)).trajectory()
+    result = process_flight(dataset, odometry, settings.align, settings.gps_monitor, align_fraction)
+    if out is not None:
+        from evp.fusion.outputs import write_flight_outputs
+
+        summary = write_flight_outputs(result, out)
+        write_settings(settings, out)
+    else:
+        summary = result.summary()
+    a = summary["alignment"]
+    typer.echo(
+        f"aligned on {a['pairs_used']} pairs ({a['mode']}, {a['model']}, clock offset {a['clock_offset_s']:+.2f} s, validation RMSE {a['validation_rmse_m']:.2f} m)"
+    )
+    typer.echo(
+        f"horizontal error vs GPS over {summary['n_evaluated']} later fixes: mean {summary['mean']:.2f} m, max {summary['max']:.2f} m, "
+        f"Q1 {summary['q1']:.2f}, Q3 {summary['q3']:.2f}, IQR {summary['iqr']:.2f}, std {summary['std']:.2f}"
+    )
+    for event in summary["events"]:
+        typer.echo(f"event at {event['t']:.1f} s: {event['kind']}: {event['message']}")
+    for warning in summary["warnings"]:
+        typer.echo(f"warning: {warning}", err=True)
+    if json_out:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(summary, indent=2))
 
 
 @app.command()

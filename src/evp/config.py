@@ -62,10 +62,46 @@ class VoSettings(_Section):
     max_step_depth_ratio: float = Field(0.5, gt=0, description="largest frame-to-frame step, in median scene depths")
 
 
+class AlignmentSettings(_Section):
+    """The alignment phase of seed 002 (``evp align``)."""
+
+    mode: str = Field("3d+baro", pattern=r"^(2d|3d)\+baro$", description="2d+baro or 3d+baro (seed 002)")
+    model: str = Field("auto", pattern="^(affine|similarity|auto)$", description="auto: chosen by the grid search")
+    window_s: float = Field(70.0, gt=0, description="alignment phase length (paper: 70 s)")
+    target_altitude_m: float | None = Field(None, description="None: the flight's typical altitude (90th percentile of GPS up)")
+    altitude_tolerance_m: float = Field(5.0, gt=0, description="the phase starts once GPS up is within this of the target")
+    max_clock_offset_s: float = Field(1.5, ge=0, description="search range of the camera-vs-GPS clock offset")
+    min_pairs: int = Field(15, ge=4)
+    validation_fraction: float = Field(0.3, gt=0, lt=0.9)
+    ransac_thresholds_m: list[float] = Field(default_factory=lambda: [1.0, 2.0, 4.0, 8.0])
+    height_tolerances_m: list[float] = Field(default_factory=lambda: [2.0, 5.0, 1e9])
+    max_speeds_m_s: list[float] = Field(default_factory=lambda: [4.0, 8.0, 1e9])
+    max_gap_s: float = Field(1.0, gt=0, description="odometry gaps longer than this are not interpolated")
+
+
+class MonitorSettings(_Section):
+    """The GPS consistency check (spoofing / jamming)."""
+
+    window_s: float = Field(1.0, gt=0, description="innovations averaged over this window")
+    false_alarm_probability: float = Field(1e-9, gt=0, lt=0.1, description="per test, under the noise model")
+    gps_sigma_m: float = Field(2.0, gt=0, description="horizontal GPS error (1 sigma, per axis), correlated over the window")
+    visual_drift_m_per_m: float = Field(0.01, ge=0, description="visual drift per metre travelled since the last realignment")
+    visual_sigma_floor_m: float = Field(1.0, ge=0)
+    realign_time_constant_s: float = Field(20.0, gt=0, description="how fast the drift correction follows consistent GPS")
+    max_correction_rate_m_s: float = Field(0.3, gt=0, description="cap on how fast the correction may move (slow spoofers)")
+    recovery_s: float = Field(10.0, gt=0, description="consistent time needed before GPS is trusted again")
+    outage_s: float = Field(2.0, gt=0, description="no fix for this long means GPS unavailable")
+
+
 class Settings(_Section):
+    estimator: Literal["auto", "klt-vo", "nadir"] = Field(
+        "auto", description="auto: nadir homography odometry for sparse imagery (frames > 1 s apart, e.g. survey photos), else KLT keyframe VO"
+    )
     orb: OrbSettings = OrbSettings()
     camera: CameraSettings = CameraSettings()
     vo: VoSettings = VoSettings()
+    align: AlignmentSettings = AlignmentSettings()
+    gps_monitor: MonitorSettings = MonitorSettings()
     eval: EvalSettings = EvalSettings()
 
 

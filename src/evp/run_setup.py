@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from evp.config import Settings
 from evp.errors import CalibrationError
 from evp.estimator import Estimator
@@ -23,7 +25,16 @@ def camera_for(dataset: Dataset, settings: Settings) -> CameraModel:
     return dataset.camera
 
 
-def make_estimator(camera: CameraModel, settings: Settings) -> Estimator:
+def make_estimator(camera: CameraModel, settings: Settings, dataset: Dataset | None = None) -> Estimator:
+    """The configured estimator; ``auto`` picks by the frame spacing of the dataset."""
+    kind = settings.estimator
+    if kind == "auto":
+        sparse = dataset is not None and dataset.num_frames > 1 and float(np.median(np.diff(dataset.frame_times))) > 1.0
+        kind = "nadir" if sparse else "klt-vo"
+    if kind == "nadir":
+        from evp.vo.nadir_homography import NadirHomographyOdometry
+
+        return NadirHomographyOdometry(camera)
     from evp.vo.klt_vo import KltVisualOdometry
 
     return KltVisualOdometry(camera, settings.vo)

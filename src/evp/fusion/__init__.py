@@ -1,0 +1,1 @@
+"""Fusing the visual track with GPS and barometer: alignment, spoofing/jamming detection."""

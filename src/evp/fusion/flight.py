@@ -1,0 +1,98 @@
+"""A whole flight through the seed 002 system: odometry, alignment to GPS, barometric altitude,
+error statistics after the alignment phase, and the GPS consistency monitor (spoofing/jamming)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from evp.config import AlignmentSettings, MonitorSettings
+from evp.eval.statistics import error_statistics
+from evp.fusion.alignment import AlignmentResult, align_flight, horizontal_errors_after, resample
+from evp.fusion.gps_input import AlignmentError, GpsTrack, clean_gps
+from evp.fusion.gps_monitor import GpsMonitor
+from evp.io.dataset import Dataset
+from evp.io.trajectory import Trajectory
+
+NEAR_TARGET_M = 2.0  # seed 002's subset: |z - target| < 2 m
+
+
+@dataclass
+class FlightResult:
+    gps: GpsTrack
+    alignment: AlignmentResult
+    errors_m: np.ndarray  # horizontal error at each GPS fix after the alignment phase
+    error_heights_m: np.ndarray
+    trust: list[tuple[float, str]]  # (GPS time, trust state) after the alignment phase
+    monitor: GpsMonitor
+
+    def summary(self) -> dict:
+        if self.errors_m.size == 0:
+            raise AlignmentError("no GPS fix after the alignment phase has a visual position to compare with")
+        out: dict = dict(error_statistics(self.errors_m))
+        out["n_evaluated"] = int(self.errors_m.size)
+        target = self.alignment.chosen["target_altitude_m"]
+        near = np.abs(self.error_heights_m - target) < NEAR_TARGET_M
+        out["near_target_altitude"] = error_statistics(self.errors_m[near]) if near.any() else None
+        out["alignment"] = {
+            "mode": self.alignment.transform.mode,
+            "window_gps_s": list(self.alignment.window),
+            "clock_offset_s": self.alignment.clock_offset_s,
+            "pairs_used": self.alignment.pairs_used,
+            "validation_rmse_m": self.alignment.validation_rmse_m,
+            "scale_m_per_unit": self.alignment.transform.scale,
+            **self.alignment.chosen,
+        }
+        out["events"] = [{"t": e.timestamp, "kind": e.kind, "message": e.message} for e in self.monitor.events]
+        out["warnings"] = self.alignment.warnings
+        return out
+
+
+def baro_heights(dataset: Dataset) -> Trajectory | None:
+    """Barometric height above the first sample (m), as a position-only trajectory (z)."""
+    if not dataset.baro:
+        return None
+    times = np.array([b.timestamp for b in dataset.baro])
+    altitude = np.array([b.altitude_m for b in dataset.baro])
+    if not np.isfinite(altitude).all():  # pressure only: invert the standard atmosphere
+        pressure = np.array([b.pressure_pa for b in dataset.baro])
+        altitude = (1.0 - (pressure / 101325.0) ** (1 / 5.25588)) / 2.25577e-5
+    up = altitude - altitude[0]
+    zeros = np.zeros(len(times))
+    return Trajectory(np.column_stack([zeros, zeros, up]), np.tile([0.0, 0.0, 0.0, 1.0], (len(times), 1)), times, "baro")
+
+
+def monitor_flight(alignment: AlignmentResult, gps: GpsTrack, settings: MonitorSettings, max_gap_s: float) -> tuple[GpsMonitor, list[tuple[float, str]]]:
+    """Replay the fixes after the alignment phase through the consistency monitor."""
+    after = np.flatnonzero(gps.times > alignment.window[1])
+    if len(gps) > 1:  # sparse GPS (one fix per survey photo): an outage is a multiple of its spacing
+        spacing = float(np.median(np.diff(gps.times)))
+        settings = settings.model_copy(update={"outage_s": max(settings.outage_s, 3.0 * spacing), "window_s": max(settings.window_s, 1.5 * spacing)})
+    monitor = GpsMonitor(settings)
+    visual, ok = resample(alignment.aligned, gps.times[after] - alignment.clock_offset_s, max_gap_s=max_gap_s)
+    steps = np.linalg.norm(np.diff(visual[:, :2], axis=0), axis=1) if len(visual) > 1 else np.zeros(0)
+    travelled = np.concatenate([[0.0], np.cumsum(np.where(np.isfinite(steps), steps, 0.0))])
+    trust = []
+    for k, index in enumerate(after):
+        if not ok[k]:
+            monitor.check_outage(float(gps.times[index]))
+            continue
+        state, _ = monitor.update(float(gps.times[index]), gps.enu[index, :2], visual[k, :2], float(travelled[k]))
+        trust.append((float(gps.times[index]), state.value))
+    return monitor, trust
+
+
+def process_flight(
+    dataset: Dataset, odometry: Trajectory, settings: AlignmentSettings, monitor_settings: MonitorSettings, align_fraction: float | None = None
+) -> FlightResult:
+    if not dataset.gps:
+        raise AlignmentError(f"{dataset.root}: the dataset has no GPS fixes to align to")
+    gps = clean_gps(dataset.gps)
+    if len(odometry) > 1:  # sparse imagery (survey photos seconds apart): interpolate across its spacing
+        spacing = float(np.median(np.diff(odometry.timestamps)))
+        settings = settings.model_copy(update={"max_gap_s": max(settings.max_gap_s, 3.0 * spacing)})
+    alignment = align_flight(odometry, gps, baro_heights(dataset), settings, align_fraction)
+    errors, heights = horizontal_errors_after(alignment, gps, settings.max_gap_s)
+    monitor, trust = monitor_flight(alignment, gps, monitor_settings, settings.max_gap_s)
+    return FlightResult(gps, alignment, errors, heights, trust, monitor)

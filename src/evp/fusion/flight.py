@@ -74,9 +74,13 @@ def monitor_flight(alignment: AlignmentResult, gps: GpsTrack, settings: MonitorS
     steps = np.linalg.norm(np.diff(visual[:, :2], axis=0), axis=1) if len(visual) > 1 else np.zeros(0)
     travelled = np.concatenate([[0.0], np.cumsum(np.where(np.isfinite(steps), steps, 0.0))])
     trust = []
+    frame_times = alignment.aligned.timestamps + alignment.clock_offset_s  # on the GPS clock
+    next_frame = int(np.searchsorted(frame_times, alignment.window[1]))
     for k, index in enumerate(after):
+        while next_frame < len(frame_times) and frame_times[next_frame] < gps.times[index]:
+            monitor.check_outage(float(frame_times[next_frame]))  # frames keep coming while GPS is silent
+            next_frame += 1
         if not ok[k]:
-            monitor.check_outage(float(gps.times[index]))
             continue
         state, _ = monitor.update(float(gps.times[index]), gps.enu[index, :2], visual[k, :2], float(travelled[k]))
         trust.append((float(gps.times[index]), state.value))

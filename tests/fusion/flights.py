@@ -1,0 +1,48 @@
+"""Seeded GPS and visual tracks for the monitor's tests and benchmark (no images needed).
+
+The visual track is the truth plus a random-walk drift growing with the distance travelled (0.5 %
+of it, 1 sigma), the error model of the visual odometry after alignment; GPS comes from the
+simulator's GPS model (Gauss-Markov + white noise, spoofing, outages).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from evp.config import MonitorSettings
+from evp.fusion.geodesy import EnuFrame
+from evp.fusion.gps_monitor import GpsMonitor
+from evp.sim import sensors
+from evp.sim.scenarios import SimOptions, build_scenario
+
+ALIGNED_AFTER_S = 70.0
+
+
+def monitor_run(gps_config: sensors.GpsConfig, seed: int, duration_s: float = 300.0, drift_fraction: float = 0.005) -> GpsMonitor:
+    scenario = build_scenario("drone-flight", SimOptions(duration_s=duration_s, relief=False, seed=seed))
+    state = scenario.motion.state(sensors.sample_times(0.0, duration_s, gps_config.rate_hz))
+    fixes = sensors.simulate_gps(state, gps_config, scenario.origin, np.random.default_rng(seed))
+    frame = EnuFrame(*scenario.origin)
+    gps_enu = frame.fixes_to_enu(fixes)
+    gps_times = np.array([f.timestamp for f in fixes]) - gps_config.clock_offset_s
+    truth = scenario.motion.state(gps_times).position
+    step = np.linalg.norm(np.diff(truth[:, :2], axis=0, prepend=truth[:1, :2]), axis=1)
+    travelled = np.cumsum(step)
+    drift = np.cumsum(np.random.default_rng(seed + 1000).normal(0, 1, (len(step), 2)) * np.sqrt(step)[:, None] * drift_fraction * 10, axis=0) / 10
+    visual = truth[:, :2] + drift
+    monitor = GpsMonitor(MonitorSettings())
+    frame_times = np.arange(ALIGNED_AFTER_S, duration_s, 1 / 30)  # camera frames: outages are noticed between fixes
+    next_frame = 0
+    for t, g, v, d in zip(gps_times, gps_enu[:, :2], visual, travelled):
+        if t < ALIGNED_AFTER_S:
+            continue
+        while next_frame < len(frame_times) and frame_times[next_frame] < t:
+            monitor.check_outage(float(frame_times[next_frame]))
+            next_frame += 1
+        monitor.update(float(t), g, v, float(d))
+    monitor.check_outage(duration_s)
+    return monitor
+
+
+def first(monitor: GpsMonitor, kind: str) -> float | None:
+    return next((e.timestamp for e in monitor.events if e.kind == kind), None)

@@ -1,4 +1,4 @@
-"""Seeded GPS and visual tracks for the monitor's tests and benchmark (no images needed).
+"""Seeded trials of the GPS consistency monitor on simulated flights (no images needed): used by the tests and bench/gps_alignment.py.
 
 The visual track is the truth plus a random-walk drift growing with the distance travelled (0.5 %
 of it, 1 sigma), the error model of the visual odometry after alignment; GPS comes from the

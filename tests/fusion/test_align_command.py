@@ -1,0 +1,78 @@
+"""`evp align` end to end: the JSON contract on a simulated flight, and the real survey photos."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from evp.io.trajectory import Trajectory, read_trajectory, write_trajectory
+from evp.sim.generate import generate
+from evp.sim.scenarios import SimOptions
+from evp.sim.sensors import GpsConfig
+from tests.conftest import shared
+
+CONTRACT = ("mean", "max", "rmse", "q1", "q3", "iqr", "std", "n_evaluated")
+
+
+def evp(*args):
+    return subprocess.run([sys.executable, "-m", "evp.cli", *map(str, args)], capture_output=True, text=True, timeout=900)
+
+
+@pytest.fixture(scope="module")
+def spoofed_flight(tmp_path_factory):
+    """A 160 s survey at 40 m, GPS pulled off at 5 m/s from t = 120 s, images at 2 fps (cheap)."""
+    root = tmp_path_factory.mktemp("flight")
+    options = SimOptions(duration_s=160.0, fps=2.0, relief=False, altitude_m=40.0, gps=GpsConfig(spoof_start_s=120.0, spoof_rate_m_s=5.0, clock_offset_s=0.3))
+    generate("drone-flight", options, root / "data", workers=1)
+    truth = read_trajectory(root / "data" / "groundtruth_cam0_tum.txt")
+    rng = np.random.default_rng(0)
+    # a visual track in its own frame and scale, drifting slowly, as an estimator would give
+    drift = np.cumsum(rng.normal(0, 0.02, truth.positions.shape), axis=0)
+    odometry = Trajectory((truth.positions + drift) * 0.1 + [5.0, -2.0, 1.0], truth.quats_xyzw, truth.timestamps)
+    write_trajectory(root / "odometry.tum", odometry)
+    return root
+
+
+def test_align_json_contract_and_spoofing_event(spoofed_flight, tmp_path):
+    out = tmp_path / "aligned"
+    result = evp("align", spoofed_flight / "data", "--trajectory", spoofed_flight / "odometry.tum", "--align-fraction", 0.4, "--json", tmp_path / "m.json", "--out", out)
+    assert result.returncode == 0, result.stderr
+    metrics = json.loads((tmp_path / "m.json").read_text())
+    for key in CONTRACT:
+        assert key in metrics
+    assert metrics["n_evaluated"] > 500
+    assert metrics["alignment"]["clock_offset_s"] == pytest.approx(0.3, abs=0.1)
+    assert [e["kind"] for e in metrics["events"]][:1] == ["spoofing_alarm"]
+    alarm = metrics["events"][0]["t"] - 1_700_000_000 - 0.3
+    assert 120.0 <= alarm <= 125.0
+    for name in ("aligned_enu.tum", "aligned.csv", "aligned.geojson", "error_histogram.png", "error_boxplot.png", "trajectory_gps.png", "gps_trust.csv", "settings.yaml"):
+        assert (out / name).is_file(), name
+    geojson = json.loads((out / "aligned.geojson").read_text())
+    lon, lat, _ = geojson["features"][0]["geometry"]["coordinates"][0]
+    assert lat == pytest.approx(43.7238, abs=0.01) and lon == pytest.approx(10.3966, abs=0.01)
+
+
+def test_align_before_the_spoof_is_accurate(spoofed_flight, tmp_path):
+    """Errors against GPS before the spoofing starts: metre level (GPS noise + drift)."""
+    result = evp("align", spoofed_flight / "data", "--trajectory", spoofed_flight / "odometry.tum", "--mode", "2d+baro", "--json", tmp_path / "m.json")
+    assert result.returncode == 0, result.stderr
+    metrics = json.loads((tmp_path / "m.json").read_text())
+    assert metrics["alignment"]["mode"] == "2d+baro"
+    assert metrics["q1"] < 3.0  # most fixes (before the pull-off) agree to metres
+
+
+def test_align_without_gps_is_a_clear_error(tmp_path, sample_path):
+    result = evp("align", sample_path, "--json", tmp_path / "m.json")
+    assert result.returncode == 2 and "no GPS" in result.stderr
+
+
+def test_real_survey_photos_align_on_the_first_third(tmp_path):
+    photos = shared("aerial_nadir_odm_toledo_fc350")
+    result = evp("align", photos, "--align-fraction", 0.333, "--json", tmp_path / "m.json")
+    assert result.returncode == 0, result.stderr
+    metrics = json.loads((tmp_path / "m.json").read_text())
+    assert metrics["n_evaluated"] >= 30
+    # the survey spans 150 x 180 m; a working pipeline stays within tens of metres of GPS at worst
+    assert metrics["mean"] < 20.0 and metrics["max"] < 60.0

@@ -59,6 +59,7 @@ class VoSettings(_Section):
     ransac_threshold_px: float = Field(1.0, gt=0)
     min_triangulation_angle_deg: float = Field(1.0, gt=0)
     init_min_angle_deg: float = Field(1.5, gt=0, description="median ray angle the initial map needs")
+    init_max_frames: int = Field(60, ge=5, description="frames after which an initialisation reference is replaced")
     max_step_depth_ratio: float = Field(0.5, gt=0, description="largest frame-to-frame step, in median scene depths")
 
 

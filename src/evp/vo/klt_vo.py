@@ -111,8 +111,10 @@ class KltVisualOdometry:
     def _try_initialise(self, frame: Frame, grey: np.ndarray, tracked: np.ndarray) -> PoseEstimate:
         kf = self._keyframe
         s = self.settings
-        if tracked.sum() < s.init_min_points:
-            # too few tracks survive: restart from this frame
+        stale = self._frame_count - kf.index > s.init_max_frames
+        if tracked.sum() < s.init_min_points or stale:
+            # too few tracks survive, or this reference never gave a sound two-view geometry
+            # (e.g. it was taken while climbing along the optical axis): restart from this frame
             self._start_keyframe(grey, self._T_world_cam, np.zeros((0, 2)), np.zeros((0, 3)))
             return self._estimate(frame, TrackingState.NOT_INITIALIZED, 0)
         parallax = np.median(np.linalg.norm(self._tracks[tracked] - kf.keypoints[tracked], axis=1))

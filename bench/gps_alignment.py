@@ -54,8 +54,10 @@ def flight_row(name: str, duration: float, altitude: float, workdir: Path) -> st
     vs_gps = result.summary()
     tracked = len(odometry) / max(1, dataset.num_frames)
     near_gps = vs_gps["near_target_altitude"] or {"mean": float("nan"), "max": float("nan")}
-    return (f"| {name} | {duration:.0f} | {altitude:.0f} | {speed:.0f} | {100 * tracked:.0f} % | "
-            f"{vs_truth['mean']:.2f} | {vs_truth['max']:.2f} | {near_gps['mean']:.2f} | {near_gps['max']:.2f} | {vs_gps['mean']:.2f} | {vs_gps['max']:.2f} | {time.perf_counter() - start:.0f} |")
+    return (
+        f"| {name} | {duration:.0f} | {altitude:.0f} | {speed:.0f} | {100 * tracked:.0f} % | "
+        f"{vs_truth['mean']:.2f} | {vs_truth['max']:.2f} | {near_gps['mean']:.2f} | {near_gps['max']:.2f} | {vs_gps['mean']:.2f} | {vs_gps['max']:.2f} | {time.perf_counter() - start:.0f} |"
+    )
 
 
 def main() -> None:
@@ -64,8 +66,12 @@ def main() -> None:
     parser.add_argument("--keep", type=Path, default=None)
     args = parser.parse_args()
     print(f"command: python bench/gps_alignment.py --flights {args.flights}\n")
-    print("Alignment (3d+baro, grid-searched model), errors on the part after the 70 s phase (half the time at altitude when shorter); 'near' = |z - target| < 2 m")
-    print("| flight | s | target m | m/s | tracked | near: mean vs truth (m) | near: max vs truth | near: mean vs GPS | near: max vs GPS | all: mean vs GPS | all: max vs GPS | wall s |")
+    print(
+        "Alignment (3d+baro, grid-searched model), errors on the part after the 70 s phase (half the time at altitude when shorter); 'near' = |z - target| < 2 m"
+    )
+    print(
+        "| flight | s | target m | m/s | tracked | near: mean vs truth (m) | near: max vs truth | near: mean vs GPS | near: max vs GPS | all: mean vs GPS | all: max vs GPS | wall s |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     workdir = args.keep or Path(tempfile.mkdtemp(prefix="evp-align-bench-"))
     for name in args.flights.split(","):
@@ -75,17 +81,24 @@ def main() -> None:
         shutil.rmtree(workdir)
     print("\nSpoofing / jamming detector (seeded flights, visual drift 0.5 % of distance, GPS 1.5 m Gauss-Markov + white)")
     pulls = [first(monitor_run(GpsConfig(spoof_start_s=150.0, spoof_rate_m_s=5.0, spoof_direction_deg=37.0 * s), s), "spoofing_alarm") for s in range(10)]
-    jumps = [first(monitor_run(GpsConfig(spoof_start_s=150.0, spoof_mode="jump", spoof_jump_m=50.0, spoof_direction_deg=37.0 * s), s), "spoofing_alarm") for s in range(10)]
+    jumps = [
+        first(monitor_run(GpsConfig(spoof_start_s=150.0, spoof_mode="jump", spoof_jump_m=50.0, spoof_direction_deg=37.0 * s), s), "spoofing_alarm")
+        for s in range(10)
+    ]
     clean = [(s, 400.0) for s in range(20)]
     false_alarms = sum(first(monitor_run(GpsConfig(), s, d), "spoofing_alarm") is not None for s, d in clean)
     hours = sum(d - 70.0 for _, d in clean) / 3600
     outage = monitor_run(GpsConfig(outages=[(120.0, 60.0)]), 5)
     print("| test | result | target |")
     print("|---|---|---|")
-    print(f"| 5 m/s pull-off, time to alarm (10 flights) | max {max(p - 150 for p in pulls):.1f} s, median {np.median([p - 150 for p in pulls]):.1f} s | <= 5 s |")
+    print(
+        f"| 5 m/s pull-off, time to alarm (10 flights) | max {max(p - 150 for p in pulls):.1f} s, median {np.median([p - 150 for p in pulls]):.1f} s | <= 5 s |"
+    )
     print(f"| 50 m jump, time to alarm (10 flights) | max {max(j - 150 for j in jumps):.1f} s | <= 1 s |")
     print(f"| false alarms, clean flights | {false_alarms} in {hours:.1f} h | 0 in >= 1 h |")
-    print(f"| 60 s jamming outage | lost at +{first(outage, 'gps_lost') - 120:.1f} s, back at +{first(outage, 'gps_back') - 120:.1f} s, trust restored at +{first(outage, 'trust_restored') - 120:.1f} s | reported |")
+    print(
+        f"| 60 s jamming outage | lost at +{first(outage, 'gps_lost') - 120:.1f} s, back at +{first(outage, 'gps_back') - 120:.1f} s, trust restored at +{first(outage, 'trust_restored') - 120:.1f} s | reported |"
+    )
 
 
 if __name__ == "__main__":

@@ -37,7 +37,9 @@ def spoofed_flight(tmp_path_factory):
 
 def test_align_json_contract_and_spoofing_event(spoofed_flight, tmp_path):
     out = tmp_path / "aligned"
-    result = evp("align", spoofed_flight / "data", "--trajectory", spoofed_flight / "odometry.tum", "--align-fraction", 0.4, "--json", tmp_path / "m.json", "--out", out)
+    result = evp(
+        "align", spoofed_flight / "data", "--trajectory", spoofed_flight / "odometry.tum", "--align-fraction", 0.4, "--json", tmp_path / "m.json", "--out", out
+    )
     assert result.returncode == 0, result.stderr
     metrics = json.loads((tmp_path / "m.json").read_text())
     for key in CONTRACT:
@@ -47,7 +49,16 @@ def test_align_json_contract_and_spoofing_event(spoofed_flight, tmp_path):
     assert [e["kind"] for e in metrics["events"]][:1] == ["spoofing_alarm"]
     alarm = metrics["events"][0]["t"] - 1_700_000_000 - 0.3
     assert 120.0 <= alarm <= 125.0
-    for name in ("aligned_enu.tum", "aligned.csv", "aligned.geojson", "error_histogram.png", "error_boxplot.png", "trajectory_gps.png", "gps_trust.csv", "settings.yaml"):
+    for name in (
+        "aligned_enu.tum",
+        "aligned.csv",
+        "aligned.geojson",
+        "error_histogram.png",
+        "error_boxplot.png",
+        "trajectory_gps.png",
+        "gps_trust.csv",
+        "settings.yaml",
+    ):
         assert (out / name).is_file(), name
     geojson = json.loads((out / "aligned.geojson").read_text())
     lon, lat, _ = geojson["features"][0]["geometry"]["coordinates"][0]

@@ -55,7 +55,9 @@ def test_recovers_a_known_affine_in_2d_plus_baro(flight):
     b = np.array([12.0, -7.0])
     odom_xy = np.linalg.solve(A, (truth[:, :2] - b).T).T
     odom = np.column_stack([odom_xy, np.random.default_rng(0).normal(0, 5, len(times))])  # odometry z is ignored in 2-D mode
-    result = align_flight(_odometry(times, odom), _gps(times, truth), _baro(times, truth[:, 2]), AlignmentSettings(mode="2d+baro", model="affine", max_clock_offset_s=0.0))
+    result = align_flight(
+        _odometry(times, odom), _gps(times, truth), _baro(times, truth[:, 2]), AlignmentSettings(mode="2d+baro", model="affine", max_clock_offset_s=0.0)
+    )
     assert np.allclose(result.transform.matrix, np.column_stack([A, b]), atol=1e-8)
     assert np.allclose(result.aligned.positions[:, 2], truth[:, 2])  # altitude from the barometer
 
@@ -72,7 +74,9 @@ def test_recovers_the_clock_offset(flight):
 
 def test_the_window_starts_at_target_altitude_and_lasts_70_s(flight):
     times, truth = flight
-    result = align_flight(_odometry(times, truth), _gps(times, truth), _baro(times, truth[:, 2]), AlignmentSettings(target_altitude_m=60.3, max_clock_offset_s=0.0))
+    result = align_flight(
+        _odometry(times, truth), _gps(times, truth), _baro(times, truth[:, 2]), AlignmentSettings(target_altitude_m=60.3, max_clock_offset_s=0.0)
+    )
     start, end = result.window
     first_reached = times[np.flatnonzero(np.abs(truth[:, 2] - 60.3) <= 5.0)[0]]
     assert start == pytest.approx(first_reached) and end - start == pytest.approx(70.0)
@@ -119,7 +123,9 @@ def test_too_few_pairs_and_missing_barometer_are_errors(flight):
 
 def test_align_fraction_uses_the_first_fixes(flight):
     times, truth = flight
-    result = align_flight(_odometry(times, truth * 2.0), _gps(times, truth), _baro(times, truth[:, 2]), AlignmentSettings(max_clock_offset_s=0.0), align_fraction=0.25)
+    result = align_flight(
+        _odometry(times, truth * 2.0), _gps(times, truth), _baro(times, truth[:, 2]), AlignmentSettings(max_clock_offset_s=0.0), align_fraction=0.25
+    )
     assert result.window == (times[0], times[int(round(0.25 * len(times))) - 1])
     with pytest.raises(AlignmentError, match="between 0 and 1"):
         align_flight(_odometry(times, truth), _gps(times, truth), None, AlignmentSettings(), align_fraction=1.5)

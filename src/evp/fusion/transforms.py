@@ -82,7 +82,14 @@ def fit_transform(odom: np.ndarray, enu: np.ndarray, mode: str, model: str, thre
     else:
         estimate = cv2.estimateAffine2D if model == "affine" else cv2.estimateAffinePartial2D
         cv2.setRNGSeed(seed)
-        matrix, inliers = estimate(np.ascontiguousarray(src[:, :2]), np.ascontiguousarray(dst[:, :2]), method=cv2.RANSAC, ransacReprojThreshold=threshold_m, maxIters=2000, confidence=0.999)
+        matrix, inliers = estimate(
+            np.ascontiguousarray(src[:, :2]),
+            np.ascontiguousarray(dst[:, :2]),
+            method=cv2.RANSAC,
+            ransacReprojThreshold=threshold_m,
+            maxIters=2000,
+            confidence=0.999,
+        )
         if matrix is None:
             raise AlignmentError(f"RANSAC found no 2-D {model} transform")
         inliers = inliers.ravel().astype(bool)

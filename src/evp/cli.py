@@ -195,8 +195,14 @@ def align(
 
     settings = load_settings(config)
     if mode:
-        settings = settings.model_copy(update={"align": settings.align.model_copy(update={"mode": mode})})
-        settings = type(settings).model_validate(settings.model_dump())
+        from pydantic import ValidationError
+
+        from evp.config import AlignmentSettings
+
+        try:
+            settings = settings.model_copy(update={"align": AlignmentSettings(**{**settings.align.model_dump(), "mode": mode})})
+        except ValidationError:
+            raise EvpError(f"--mode must be 2d+baro or 3d+baro, not {mode!r}") from None
     dataset = open_dataset(flight)
     if trajectory is not None:
         odometry = read_trajectory(trajectory)

@@ -212,7 +212,7 @@ def align(
         estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
         with Progress(transient=True) as progress:
             task = progress.add_task(f"visual odometry {dataset.name}", total=dataset.num_frames)
-            odometry = run_dataset(dataset, estimator, lambda n: progress.advance(task, n)).trajectory()
+            odometry = run_dataset(dataset, estimator, lambda n: progress.advance(task, n)).segments()
     result = process_flight(dataset, odometry, settings.align, settings.gps_monitor, align_fraction)
     if out is not None:
         from evp.fusion.outputs import write_flight_outputs

@@ -38,6 +38,20 @@ class RunResult:
         poses = np.array([e.T_world_cam for e in tracked]).reshape(-1, 4, 4)
         return Trajectory.from_poses(poses, np.array([e.timestamp for e in tracked]), "estimate")
 
+    def segments(self) -> list[Trajectory]:
+        """The tracked poses split where tracking was lost: a light VO restarts in a new frame and
+        scale after a loss, so each piece is its own visual frame."""
+        pieces: list[list[PoseEstimate]] = [[]]
+        for estimate in self.estimates:
+            if estimate.tracking_state in TRACKED_STATES:
+                pieces[-1].append(estimate)
+            elif pieces[-1]:
+                pieces.append([])
+        return [
+            Trajectory.from_poses(np.array([e.T_world_cam for e in piece]), np.array([e.timestamp for e in piece]), f"segment{k}")
+            for k, piece in enumerate(p for p in pieces if p)
+        ]
+
     @property
     def init_frame(self) -> int | None:
         """Index (among fed frames) of the first tracked frame."""

@@ -129,3 +129,18 @@ def test_align_fraction_uses_the_first_fixes(flight):
     assert result.window == (times[0], times[int(round(0.25 * len(times))) - 1])
     with pytest.raises(AlignmentError, match="between 0 and 1"):
         align_flight(_odometry(times, truth), _gps(times, truth), None, AlignmentSettings(), align_fraction=1.5)
+
+
+def test_a_straight_window_is_extended_back_to_take_off():
+    """A straight leg cannot fix the rotation about itself; the vertical climb before it can."""
+    times = np.arange(0.0, 120.0, 0.1)
+    climb = np.clip(times / 20.0, 0.0, 1.0) * 60.0
+    east = np.clip(times - 20.0, 0.0, None) * 5.0
+    truth = np.column_stack([east, 0.2 * np.sin(times / 10.0), climb])
+    R = Rotation.from_euler("zyx", [50, 20, 10], degrees=True).as_matrix()
+    odom = truth @ R * 0.1
+    settings = AlignmentSettings(model="similarity", target_altitude_m=60.0, window_s=60.0, max_clock_offset_s=0.0)
+    result = align_flight(_odometry(times, odom), _gps(times, truth), _baro(times, truth[:, 2]), settings)
+    assert any("nearly straight" in w for w in result.warnings)
+    assert result.window[0] == times[0]
+    assert np.allclose(result.transform.matrix[:, :3], 10.0 * R, atol=1e-6)  # enu = 10 R odom

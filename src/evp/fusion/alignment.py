@@ -50,6 +50,14 @@ def resample(trajectory: Trajectory, times: np.ndarray, max_gap_s: float) -> tup
     return positions, ok
 
 
+def _nearly_collinear(points: np.ndarray, ratio: float = 0.1) -> bool:
+    """True when the points spread along one direction only (second singular value < ratio x first)."""
+    if len(points) < 3:
+        return True
+    singular = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+    return bool(singular[1] < ratio * singular[0])
+
+
 def estimate_clock_offset(odom: Trajectory, gps: GpsTrack, max_offset_s: float, max_gap_s: float) -> float:
     """The offset (GPS clock minus camera clock) whose pairs a similarity fits best (coarse grid, then
     a parabola through the best three)."""
@@ -114,6 +122,10 @@ def align_flight(
         raise AlignmentError("2d+baro alignment needs barometer heights; use 3d+baro")
     warnings = list(gps.warnings)
     start, end, target = alignment_window(gps, settings, align_fraction)
+    if _nearly_collinear(gps.enu[(gps.times >= start) & (gps.times <= end)]) and start > gps.times[0]:
+        # a straight leg leaves the rotation about it free: take the climb too (it is vertical)
+        warnings.append(f"the alignment window ({start:.1f}-{end:.1f} s) is a nearly straight path: extended back to the first fix")
+        start = float(gps.times[0])
     in_window = (gps.times >= start) & (gps.times <= end)
     window = gps.select(in_window)
     offset = estimate_clock_offset(odom, window, settings.max_clock_offset_s, settings.max_gap_s)

@@ -9,7 +9,7 @@ import numpy as np
 
 from evp.config import AlignmentSettings, MonitorSettings
 from evp.eval.statistics import error_statistics
-from evp.fusion.alignment import AlignmentResult, align_flight, horizontal_errors_after, resample
+from evp.fusion.alignment import AlignmentResult, align_flight, alignment_window, horizontal_errors_after, resample
 from evp.fusion.gps_input import AlignmentError, GpsTrack, clean_gps
 from evp.fusion.gps_monitor import GpsMonitor
 from evp.io.dataset import Dataset
@@ -87,16 +87,41 @@ def monitor_flight(alignment: AlignmentResult, gps: GpsTrack, settings: MonitorS
     return monitor, trust
 
 
+def choose_segment(segments: list[Trajectory], gps: GpsTrack, settings: AlignmentSettings, align_fraction: float | None) -> tuple[Trajectory, list[str]]:
+    """The visual segment with most poses in the alignment phase; the others cannot share its
+    transform (another frame and scale), which is said in the returned warnings."""
+    start, end, _ = alignment_window(gps, settings, align_fraction)
+    counts = [int(np.sum((s.timestamps >= start - 5.0) & (s.timestamps <= end + 5.0))) for s in segments]
+    best = int(np.argmax(counts))
+    warnings = [
+        f"visual tracking restarted: poses {s.timestamps[0]:.1f}-{s.timestamps[-1]:.1f} s are in another frame and are not aligned"
+        for k, s in enumerate(segments)
+        if k != best
+    ]
+    return segments[best], warnings
+
+
 def process_flight(
-    dataset: Dataset, odometry: Trajectory, settings: AlignmentSettings, monitor_settings: MonitorSettings, align_fraction: float | None = None
+    dataset: Dataset,
+    odometry: Trajectory | list[Trajectory],
+    settings: AlignmentSettings,
+    monitor_settings: MonitorSettings,
+    align_fraction: float | None = None,
 ) -> FlightResult:
+    """``odometry`` is one visual track, or its segments between tracking losses."""
     if not dataset.gps:
         raise AlignmentError(f"{dataset.root}: the dataset has no GPS fixes to align to")
     gps = clean_gps(dataset.gps)
+    segment_warnings: list[str] = []
+    if isinstance(odometry, list):
+        if not odometry:
+            raise AlignmentError("the visual odometry tracked no frame: nothing to align")
+        odometry, segment_warnings = choose_segment(odometry, gps, settings, align_fraction)
     if len(odometry) > 1:  # sparse imagery (survey photos seconds apart): interpolate across its spacing
         spacing = float(np.median(np.diff(odometry.timestamps)))
         settings = settings.model_copy(update={"max_gap_s": max(settings.max_gap_s, 3.0 * spacing)})
     alignment = align_flight(odometry, gps, baro_heights(dataset), settings, align_fraction)
+    alignment.warnings.extend(segment_warnings)
     errors, heights = horizontal_errors_after(alignment, gps, settings.max_gap_s)
     monitor, trust = monitor_flight(alignment, gps, monitor_settings, settings.max_gap_s)
     return FlightResult(gps, alignment, errors, heights, trust, monitor)

@@ -75,8 +75,9 @@ class Scene:
         return self._arrays
 
 
-def box_quads(centre, size, texture: np.ndarray, metres_per_texel: float, name: str, inward: bool = False, skip_bottom: bool = True) -> list[TexturedQuad]:
-    """The faces of an axis-aligned box (a building, a crate; or a room when ``inward``)."""
+def box_quads(centre, size, texture: np.ndarray, metres_per_texel: float, name: str, skip_bottom: bool = True) -> list[TexturedQuad]:
+    """The faces of an axis-aligned box: a building or a crate, or a room (faces are two-sided, so the
+    same quads bound a room seen from inside)."""
     cx, cy, cz = centre
     sx, sy, sz = size
     lo = np.array([cx - sx / 2, cy - sy / 2, cz - sz / 2])
@@ -96,7 +97,6 @@ def box_quads(centre, size, texture: np.ndarray, metres_per_texel: float, name: 
         cols = max(2, int(round(su / metres_per_texel)))
         face_texture = cv2.resize(texture, (cols, rows), interpolation=cv2.INTER_AREA) if texture.shape != (rows, cols) else texture
         quads.append(TexturedQuad(origin, u, v, su, sv, face_texture, su / cols, f"{name}:{face}"))
-    del inward  # faces are two-sided: the same quads bound a room seen from inside
     return quads
 
 

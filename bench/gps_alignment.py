@@ -50,7 +50,7 @@ def flight_row(name: str, duration: float, altitude: float, workdir: Path) -> st
     true_xy, ok = resample(truth, result.alignment.aligned.timestamps[after], 1.0)
     errors = np.linalg.norm(result.alignment.aligned.positions[after][ok, :2] - true_xy[ok, :2], axis=1)
     near = np.abs(result.alignment.aligned.positions[after][ok, 2] - altitude) < 2.0
-    vs_truth = error_statistics(errors[near]) if near.any() else None
+    vs_truth = error_statistics(errors[near]) if near.any() else {"mean": float("nan"), "max": float("nan")}
     vs_gps = result.summary()
     tracked = len(result.alignment.aligned) / max(1, dataset.num_frames)
     near_gps = vs_gps["near_target_altitude"] or {"mean": float("nan"), "max": float("nan")}

@@ -21,7 +21,7 @@ from evp.config import AlignmentSettings, MonitorSettings, Settings
 from evp.eval.statistics import error_statistics
 from evp.fusion.alignment import resample
 from evp.fusion.flight import process_flight
-from evp.fusion.monitor_trials import first, monitor_run
+from evp.fusion.monitor_trials import drifting_track, first, monitor_run
 from evp.io.registry import open_dataset
 from evp.io.trajectory import read_trajectory
 from evp.pipeline import run_dataset
@@ -61,8 +61,9 @@ def flight_row(name: str, duration: float, altitude: float, workdir: Path) -> st
 
 
 def model_track_row(name: str, duration: float, altitude: float, drift_fraction: float = 0.005) -> str:
-    """The same flight with the visual track modelled (truth in its own frame and scale plus a
-    random-walk drift of ``drift_fraction`` of the distance): the alignment's own accuracy."""
+    """The same flight with the visual track modelled (truth in its own frame and scale, with scale
+    and heading errors of ``drift_fraction``, see monitor_trials.drifting_track): the alignment's
+    own accuracy."""
     from scipy.spatial.transform import Rotation
 
     from evp.fusion.alignment import align_flight
@@ -78,10 +79,9 @@ def model_track_row(name: str, duration: float, altitude: float, drift_fraction:
     rng = np.random.default_rng(ord(name))
     times = np.arange(0.0, duration, 0.1)
     truth = scenario.motion.state(times).position
-    step = np.linalg.norm(np.diff(truth, axis=0, prepend=truth[:1]), axis=1)
-    drift = np.cumsum(rng.normal(0, 1, truth.shape) * np.sqrt(step)[:, None] * drift_fraction * 10, axis=0) / 10
+    visual = drifting_track(truth, drift_fraction, rng)
     R = Rotation.from_euler("zyx", [rng.uniform(0, 360), 2, -3], degrees=True).as_matrix()
-    odometry = Trajectory(((truth + drift) @ R) * 0.03, np.tile([0.0, 0.0, 0.0, 1.0], (len(times), 1)), times)
+    odometry = Trajectory((visual @ R) * 0.03, np.tile([0.0, 0.0, 0.0, 1.0], (len(times), 1)), times)
     gps = clean_gps(
         sensors.simulate_gps(scenario.motion.state(sensors.sample_times(0, duration, 10.0)), options.gps, scenario.origin, rng), EnuFrame(*scenario.origin)
     )
@@ -117,13 +117,13 @@ def main() -> None:
         print(flight_row(name, duration, altitude, workdir), flush=True)
     if args.keep is None:
         shutil.rmtree(workdir)
-    print("\nAlignment alone: the visual track modelled as truth (own frame, scale) + 0.5 %-of-distance random-walk drift")
+    print("\nAlignment alone: the visual track modelled as truth (own frame, scale) with 0.5 % scale and heading errors")
     print("| flight | s | target m | m/s | near: mean vs truth (m) | near: max vs truth (m) | model |")
     print("|---|---|---|---|---|---|---|")
     for name in args.flights.split(","):
         duration, altitude = TABLE_I[name]
         print(model_track_row(name, duration, altitude), flush=True)
-    print("\nSpoofing / jamming detector (seeded flights, visual drift 0.5 % of distance, GPS 1.5 m Gauss-Markov + white)")
+    print("\nSpoofing / jamming detector (seeded flights, visual track with 0.5 % scale and heading errors, GPS 1.5 m Gauss-Markov + white)")
     pulls = [first(monitor_run(GpsConfig(spoof_start_s=150.0, spoof_rate_m_s=5.0, spoof_direction_deg=37.0 * s), s), "spoofing_alarm") for s in range(10)]
     jumps = [
         first(monitor_run(GpsConfig(spoof_start_s=150.0, spoof_mode="jump", spoof_jump_m=50.0, spoof_direction_deg=37.0 * s), s), "spoofing_alarm")

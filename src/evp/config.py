@@ -130,24 +130,33 @@ def _from_orbslam(path: Path, data: dict) -> dict:
     return nested
 
 
+def read_settings_yaml(path: Path) -> dict:
+    """A YAML mapping (OpenCV FileStorage headers allowed); problems raise ConfigError naming the line."""
+    from evp.calib.camera_files import load_yaml_mapping
+
+    return load_yaml_mapping(path, lambda p, msg, line=None: ConfigError(f"{p}" + (f", line {line}" if line else "") + f": {msg}"))
+
+
+def validation_message(exc: ValidationError) -> str:
+    """The first problem pydantic found, as 'field.path: message (got value)'."""
+    first = exc.errors()[0]
+    return f"{'.'.join(str(p) for p in first['loc'])}: {first['msg']} (got {first.get('input')!r})"
+
+
 def load_settings(path: str | Path | None = None) -> Settings:
     """Defaults, overridden by a YAML file (EVP layout or ORB-SLAM settings)."""
     if path is None:
         return Settings()
-    from evp.calib.camera_files import load_yaml_mapping
-
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: settings file not found")
-    data = load_yaml_mapping(path, lambda p, msg, line=None: ConfigError(f"{p}" + (f", line {line}" if line else "") + f": {msg}"))
+    data = read_settings_yaml(path)
     if any(key in data for key in ORBSLAM_KEYS) or "Camera.fx" in data:
         data = _from_orbslam(path, data)
     try:
         return Settings.model_validate(data)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"])
-        raise ConfigError(f"{path}: {where}: {first['msg']} (got {first.get('input')!r})") from exc
+        raise ConfigError(f"{path}: {validation_message(exc)}") from exc
 
 
 def settings_yaml(settings: Settings) -> str:

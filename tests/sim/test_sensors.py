@@ -5,6 +5,7 @@ import pymap3d
 import pytest
 from scipy.spatial.transform import Rotation
 
+from evp.atmosphere import altitude_from_pressure, pressure_from_altitude
 from evp.sim import sensors
 from evp.sim.motion import SplineMotion
 
@@ -110,7 +111,8 @@ def test_barometer_noise_and_drift():
     assert slope * 60 == pytest.approx(1.2, rel=0.02)
     assert np.std(altitude - (slope * state.time + intercept)) == pytest.approx(0.5, rel=0.05)
     pressure = np.array([s.pressure_pa for s in samples])
-    assert pressure[0] == pytest.approx(sensors.pressure_from_altitude(np.array([34.0]))[0], abs=20)  # ~12 Pa per metre
+    assert pressure[0] == pytest.approx(pressure_from_altitude(np.array([34.0]))[0], abs=20)  # ~12 Pa per metre
+    assert altitude_from_pressure(pressure_from_altitude(np.array([34.0]))) == pytest.approx([34.0])
 
 
 def test_wheel_odometry_quantisation_and_gyro():

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from evp.atmosphere import altitude_from_pressure
 from evp.config import AlignmentSettings, MonitorSettings
 from evp.eval.statistics import error_statistics
 from evp.fusion.alignment import AlignmentResult, align_flight, alignment_window, horizontal_errors_after, resample
@@ -56,8 +57,7 @@ def baro_heights(dataset: Dataset) -> Trajectory | None:
     times = np.array([b.timestamp for b in dataset.baro])
     altitude = np.array([b.altitude_m for b in dataset.baro])
     if not np.isfinite(altitude).all():  # pressure only: invert the standard atmosphere
-        pressure = np.array([b.pressure_pa for b in dataset.baro])
-        altitude = (1.0 - (pressure / 101325.0) ** (1 / 5.25588)) / 2.25577e-5
+        altitude = altitude_from_pressure(np.array([b.pressure_pa for b in dataset.baro]))
     up = altitude - altitude[0]
     zeros = np.zeros(len(times))
     return Trajectory(np.column_stack([zeros, zeros, up]), np.tile([0.0, 0.0, 0.0, 1.0], (len(times), 1)), times, "baro")

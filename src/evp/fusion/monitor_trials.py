@@ -1,8 +1,9 @@
 """Seeded trials of the GPS consistency monitor on simulated flights (no images needed): used by the tests and bench/gps_alignment.py.
 
-The visual track is the truth plus a random-walk drift growing with the distance travelled (0.5 %
-of it, 1 sigma), the error model of the visual odometry after alignment; GPS comes from the
-simulator's GPS model (Gauss-Markov + white noise, spoofing, outages).
+The visual track is the truth replayed with a scale and a heading error of ``drift_fraction``
+(1 sigma each, slowly wandering), so its error grows in proportion to the distance travelled like a
+visual odometry's after alignment; GPS comes from the simulator's GPS model (Gauss-Markov + white
+noise, spoofing, outages).
 """
 
 from __future__ import annotations
@@ -18,6 +19,23 @@ from evp.sim.scenarios import SimOptions, build_scenario
 ALIGNED_AFTER_S = 70.0
 
 
+def drifting_track(truth: np.ndarray, drift_fraction: float, rng: np.random.Generator) -> np.ndarray:
+    """``truth`` (N, 2 or 3) re-integrated with scale and heading errors of ~``drift_fraction``
+    (1 sigma), wandering slowly (a random walk reaching that size over the track)."""
+    steps = np.diff(truth, axis=0, prepend=truth[:1])
+    n = len(truth)
+    wander = np.cumsum(rng.normal(0, 1, (n, 2)), axis=0) / np.sqrt(n)
+    scale = 1.0 + drift_fraction * (rng.normal() + wander[:, 0])
+    heading = drift_fraction * (rng.normal() + wander[:, 1])
+    cos, sin = np.cos(heading), np.sin(heading)
+    moved = steps.copy()
+    moved[:, 0] = scale * (cos * steps[:, 0] - sin * steps[:, 1])
+    moved[:, 1] = scale * (sin * steps[:, 0] + cos * steps[:, 1])
+    if truth.shape[1] > 2:
+        moved[:, 2] = scale * steps[:, 2]
+    return truth[0] + np.cumsum(moved, axis=0)
+
+
 def monitor_run(gps_config: sensors.GpsConfig, seed: int, duration_s: float = 300.0, drift_fraction: float = 0.005) -> GpsMonitor:
     scenario = build_scenario("drone-flight", SimOptions(duration_s=duration_s, relief=False, seed=seed))
     state = scenario.motion.state(sensors.sample_times(0.0, duration_s, gps_config.rate_hz))
@@ -28,8 +46,7 @@ def monitor_run(gps_config: sensors.GpsConfig, seed: int, duration_s: float = 30
     truth = scenario.motion.state(gps_times).position
     step = np.linalg.norm(np.diff(truth[:, :2], axis=0, prepend=truth[:1, :2]), axis=1)
     travelled = np.cumsum(step)
-    drift = np.cumsum(np.random.default_rng(seed + 1000).normal(0, 1, (len(step), 2)) * np.sqrt(step)[:, None] * drift_fraction * 10, axis=0) / 10
-    visual = truth[:, :2] + drift
+    visual = drifting_track(truth[:, :2], drift_fraction, np.random.default_rng(seed + 1000))
     monitor = GpsMonitor(MonitorSettings())
     frame_times = np.arange(ALIGNED_AFTER_S, duration_s, 1 / 30)  # camera frames: outages are noticed between fixes
     next_frame = 0

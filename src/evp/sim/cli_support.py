@@ -6,6 +6,7 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
+from evp.config import read_settings_yaml, validation_message
 from evp.errors import ConfigError
 from evp.sim.scenarios import SimOptions
 
@@ -33,9 +34,7 @@ def options_from_cli(
     """Flags override the YAML file, which overrides the defaults."""
     data: dict = {}
     if config is not None:
-        from evp.calib.camera_files import load_yaml_mapping
-
-        data = load_yaml_mapping(config, lambda p, msg, line=None: ConfigError(f"{p}: {msg}"))
+        data = read_settings_yaml(config)
     data.update({k: v for k, v in flags.items() if v is not None})
     data["duration_s"] = duration if duration is not None else data.get("duration_s")
     gps = dict(data.get("gps", {}))
@@ -50,5 +49,4 @@ def options_from_cli(
     try:
         return SimOptions.model_validate(data)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        raise ConfigError(f"simulation option {'.'.join(map(str, first['loc']))}: {first['msg']} (got {first.get('input')!r})") from exc
+        raise ConfigError(f"simulation option {validation_message(exc)}") from exc

@@ -13,6 +13,7 @@ import numpy as np
 import pymap3d
 from pydantic import BaseModel, ConfigDict, Field
 
+from evp.atmosphere import pressure_from_altitude
 from evp.sim.motion import MotionState
 from evp.types import BaroSample, GpsFix, ImuSample, RangeSample, WheelOdometry, WifiScan
 
@@ -156,11 +157,6 @@ def simulate_gps(state: MotionState, config: GpsConfig, origin: tuple[float, flo
         for t, la, lo, al, j in zip(state.time, lat, lon, alt, jammed)
         if not j
     ]
-
-
-def pressure_from_altitude(altitude_m: np.ndarray) -> np.ndarray:
-    """International Standard Atmosphere, troposphere."""
-    return 101325.0 * (1.0 - 2.25577e-5 * altitude_m) ** 5.25588
 
 
 def simulate_baro(state: MotionState, config: BaroConfig, origin_alt_m: float, rng: np.random.Generator) -> list[BaroSample]:

@@ -144,3 +144,15 @@ def test_a_straight_window_is_extended_back_to_take_off():
     assert any("nearly straight" in w for w in result.warnings)
     assert result.window[0] == times[0]
     assert np.allclose(result.transform.matrix[:, :3], 10.0 * R, atol=1e-6)  # enu = 10 R odom
+
+
+def test_flat_pairs_do_not_get_an_unconstrained_affine(flight):
+    """Pairs at one altitude are coplanar: a 3-D affine would be free across them."""
+    times, truth = flight
+    level = truth.copy()
+    level[:, 2] = 60.0
+    result = align_flight(
+        _odometry(times, level * 0.1), _gps(times, level), None, AlignmentSettings(mode="3d+baro", max_clock_offset_s=0.0, target_altitude_m=60.0)
+    )
+    assert result.chosen["model"] == "similarity"
+    assert any("affine fit" in w for w in result.warnings)

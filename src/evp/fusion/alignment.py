@@ -58,6 +58,13 @@ def _nearly_collinear(points: np.ndarray, ratio: float = 0.1) -> bool:
     return bool(singular[1] < ratio * singular[0])
 
 
+def _affine_unconstrained(points: np.ndarray, mode: str, ratio: float = 0.1) -> bool:
+    """True when the pairs are nearly coplanar (3-D) or collinear (2-D), leaving an affine free."""
+    used = points if mode == "3d+baro" else points[:, :2]
+    singular = np.linalg.svd(used - used.mean(axis=0), compute_uv=False)
+    return bool(singular[-1] < ratio * singular[0])
+
+
 def estimate_clock_offset(odom: Trajectory, gps: GpsTrack, max_offset_s: float, max_gap_s: float) -> float:
     """The offset (GPS clock minus camera clock) whose pairs a similarity fits best (coarse grid, then
     a parabola through the best three)."""
@@ -140,6 +147,10 @@ def align_flight(
     if validate.sum() < 3:
         raise AlignmentError("the alignment phase is too short to hold out validation pairs")
     models = MODELS if settings.model == "auto" else (settings.model,)
+    if "affine" in models and _affine_unconstrained(pairs_gps, settings.mode):
+        # an affine map has a free stretch across a flat (3-D) or straight (2-D) set of pairs
+        warnings.append("the alignment pairs do not span enough directions for an affine fit: similarity used")
+        models = ("similarity",)
     required = min(settings.min_pairs, int(train.sum()))  # filters may not leave fewer (the unfiltered set always qualifies)
     best: tuple[float, dict] | None = None
     for model, threshold, height_tol, max_speed in itertools.product(

@@ -84,7 +84,7 @@ def run(
     estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
     with Progress(transient=True) as progress:
         task = progress.add_task(f"{dataset.name}", total=dataset.num_frames)
-        result = run_dataset(dataset, estimator, lambda n: progress.advance(task, n))
+        result = run_dataset(dataset, estimator, lambda n: progress.advance(task, n), settings.orb.n_features)
     metrics = write_outputs(result, dataset, settings, out)
     typer.echo(
         f"{dataset.name}: tracked {metrics['tracked_frames']}/{metrics['frames']} frames "

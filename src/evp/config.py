@@ -63,6 +63,28 @@ class VoSettings(_Section):
     max_step_depth_ratio: float = Field(0.5, gt=0, description="largest frame-to-frame step, in median scene depths")
 
 
+class SlamSettings(_Section):
+    """The ORB-SLAM-style engine (``evp.slam``); names follow ORB-SLAM where it has one."""
+
+    mapping: Literal["thread", "inline"] = Field("thread", description="local mapping in its own worker thread, or inline after each keyframe (deterministic)")
+    init_min_matches: int = Field(100, ge=20, description="matches to the initial reference needed to try initialising")
+    init_search_radius_px: float = Field(100.0, gt=0, description="window for initial matching")
+    init_min_parallax_deg: float = Field(1.0, gt=0)
+    init_min_triangulated: int = Field(50, ge=8)
+    homography_ratio: float = Field(0.40, gt=0, lt=1, description="RH above this selects the homography")
+    initial_median_depth_m: float = Field(1.0, gt=0, description="scale of the initial map (a known scene depth, e.g. altitude for a nadir camera)")
+    motion_search_radius_px: float = Field(15.0, gt=0, description="guided search window around the motion-model prediction")
+    local_map_search_radius_px: float = Field(4.0, gt=0, description="window for local map points (times the level scale)")
+    min_tracked_inliers: int = Field(30, ge=6, description="fewer inliers after local-map tracking: LOST")
+    min_relocalised_inliers: int = Field(50, ge=10)
+    keyframe_max_frames: int = Field(30, ge=1, description="a keyframe at least this often (frames) when tracking is weak")
+    keyframe_ref_ratio: float = Field(0.9, gt=0, lt=1, description="a keyframe when tracked points fall below this share of the reference keyframe's")
+    covisible_keyframes: int = Field(10, ge=2, description="neighbours used to triangulate new points")
+    local_ba_keyframes: int = Field(8, ge=2, description="keyframes optimised by local bundle adjustment")
+    ba_evaluations: int = Field(6, ge=1, description="solver evaluations per outlier round")
+    keyframe_redundancy: float = Field(0.9, gt=0, le=1, description="a keyframe whose points this share is seen by 3 others is culled")
+
+
 class AlignmentSettings(_Section):
     """The alignment phase of seed 002 (``evp align``)."""
 
@@ -95,12 +117,14 @@ class MonitorSettings(_Section):
 
 
 class Settings(_Section):
-    estimator: Literal["auto", "klt-vo", "nadir"] = Field(
-        "auto", description="auto: nadir homography odometry for sparse imagery (frames > 1 s apart, e.g. survey photos), else KLT keyframe VO"
+    estimator: Literal["auto", "slam", "klt-vo", "nadir"] = Field(
+        "auto",
+        description="auto: nadir homography odometry for sparse imagery (frames > 1 s apart, e.g. survey photos), else SLAM; klt-vo is the light VO mode",
     )
     orb: OrbSettings = OrbSettings()
     camera: CameraSettings = CameraSettings()
     vo: VoSettings = VoSettings()
+    slam: SlamSettings = SlamSettings()
     align: AlignmentSettings = AlignmentSettings()
     gps_monitor: MonitorSettings = MonitorSettings()
     eval: EvalSettings = EvalSettings()

@@ -10,7 +10,9 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
+import cv2
 import numpy as np
 
 from evp.config import Settings, write_settings
@@ -20,6 +22,9 @@ from evp.io.dataset import Dataset
 from evp.io.trajectory import Trajectory, write_trajectory
 from evp.types import PoseEstimate, TrackingState
 
+if TYPE_CHECKING:
+    from evp.slam.system import SlamSystem
+
 TRACKED_STATES = (TrackingState.OK, TrackingState.RELOCALIZED)
 
 
@@ -28,6 +33,8 @@ class RunResult:
     estimates: list[PoseEstimate] = field(default_factory=list)
     tracking_ms: list[float] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)  # why frames were not used
+    reference_orb_ms: list[float] = field(default_factory=list)  # OpenCV ORB on the same frames
+    slam: SlamSystem | None = None  # the engine, when the estimator builds a map
 
     @property
     def tracked(self) -> list[PoseEstimate]:
@@ -58,9 +65,24 @@ class RunResult:
         return next((i for i, e in enumerate(self.estimates) if e.tracking_state in TRACKED_STATES), None)
 
 
-def run_dataset(dataset: Dataset, estimator: Estimator, progress: Callable[[int], None] | None = None) -> RunResult:
-    """Feed every frame; undecodable or rejected frames are skipped and reported, never fatal."""
-    result = RunResult()
+    def final_trajectory(self) -> Trajectory:
+        """The SLAM trajectory through the final (bundle-adjusted) keyframes; else the live one."""
+        if self.slam is None:
+            return self.trajectory()
+        stamps, poses = self.slam.refined_trajectory()
+        return Trajectory.from_poses(poses, stamps, "estimate")
+
+
+def run_dataset(dataset: Dataset, estimator: Estimator, progress: Callable[[int], None] | None = None, reference_orb_features: int | None = None) -> RunResult:
+    """Feed every frame; undecodable or rejected frames are skipped and reported, never fatal.
+
+    With ``reference_orb_features``, OpenCV's own ORB (that many features) is timed on each frame
+    too, outside the tracking time, so that speed can be reported as a ratio measured in one run.
+    """
+    from evp.slam.system import SlamSystem
+
+    result = RunResult(slam=estimator if isinstance(estimator, SlamSystem) else None)
+    reference_orb = cv2.ORB_create(reference_orb_features) if reference_orb_features else None
     errors: list[DatasetError] = []
     last_stamp = -np.inf
     for frame in dataset.frames(errors):
@@ -76,10 +98,39 @@ def run_dataset(dataset: Dataset, estimator: Estimator, progress: Callable[[int]
                 result.tracking_ms.append((time.perf_counter() - start) * 1000.0)
                 result.estimates.append(estimate)
                 last_stamp = frame.timestamp
+                if reference_orb is not None:
+                    result.reference_orb_ms.append(_time_reference_orb(reference_orb, frame.image))
         if progress:
             progress(1)
+    if result.slam is not None:
+        result.slam.finish()
     result.skipped += [str(e) for e in errors]
     return result
+
+
+def _time_reference_orb(orb: cv2.ORB, image: np.ndarray) -> float:
+    grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    start = time.perf_counter()
+    orb.detectAndCompute(grey, None)
+    return (time.perf_counter() - start) * 1000.0
+
+
+def _timing(result: RunResult) -> dict:
+    def stats(values: list[float]) -> dict:
+        array = np.array(values) if values else np.zeros(1)
+        return {"median": float(np.median(array)), "p95": float(np.percentile(array, 95))}
+
+    timing: dict = {"tracking_ms": result.tracking_ms, "tracking_ms_median": stats(result.tracking_ms)["median"], "tracking_ms_p95": stats(result.tracking_ms)["p95"]}
+    if result.reference_orb_ms:
+        timing["opencv_orb_ms"] = result.reference_orb_ms
+        timing["opencv_orb_ms_median"] = stats(result.reference_orb_ms)["median"]
+        timing["tracking_to_orb_ratio"] = timing["tracking_ms_median"] / max(timing["opencv_orb_ms_median"], 1e-9)
+    if result.slam is not None:
+        timing["orb_extraction_ms"] = result.slam.extraction_ms
+        timing["mapping_ms_per_keyframe"] = result.slam.mapping_ms
+        timing["mapping_ms_median"] = stats(result.slam.mapping_ms)["median"]
+        timing["keyframe_queue_max"] = result.slam.mapping.max_queue
+    return timing
 
 
 def _max_time_difference(dataset: Dataset) -> float:
@@ -90,26 +141,24 @@ def _max_time_difference(dataset: Dataset) -> float:
 
 
 def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: Path) -> dict:
-    """trajectory.tum, states.csv, timing.json, metrics.json (+ plots) when ground truth exists, settings.yaml."""
+    """trajectory.tum, states.csv, timing.json, metrics.json (+ plots) when ground truth exists,
+    settings.yaml; for SLAM also keyframes.tum, map.ply, map.npz and trajectory_live.tum (the
+    poses as answered live, before later bundle adjustment refined the keyframes)."""
     out.mkdir(parents=True, exist_ok=True)
     write_settings(settings, out)
-    trajectory = result.trajectory()
+    trajectory = result.final_trajectory()
     write_trajectory(out / "trajectory.tum", trajectory)
+    if result.slam is not None:
+        write_trajectory(out / "trajectory_live.tum", result.trajectory())
+        stamps, poses = result.slam.keyframe_trajectory()
+        write_trajectory(out / "keyframes.tum", Trajectory.from_poses(poses, stamps, "keyframes"))
+        result.slam.map.write_ply(out / "map.ply")
+        result.slam.map.save(out / "map.npz")
     with (out / "states.csv").open("w") as handle:
         handle.write("timestamp,state,quality\n")
         for e in result.estimates:
             handle.write(f"{e.timestamp!r},{e.tracking_state.value},{e.quality}\n")
-    ms = np.array(result.tracking_ms) if result.tracking_ms else np.zeros(1)
-    (out / "timing.json").write_text(
-        json.dumps(
-            {
-                "tracking_ms": result.tracking_ms,
-                "tracking_ms_median": float(np.median(ms)),
-                "tracking_ms_p95": float(np.percentile(ms, 95)),
-            },
-            indent=2,
-        )
-    )
+    (out / "timing.json").write_text(json.dumps(_timing(result), indent=2))
     metrics: dict = {
         "frames": dataset.num_frames,
         "frames_fed": len(result.estimates),

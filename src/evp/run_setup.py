@@ -30,11 +30,15 @@ def make_estimator(camera: CameraModel, settings: Settings, dataset: Dataset | N
     kind = settings.estimator
     if kind == "auto":
         sparse = dataset is not None and dataset.num_frames > 1 and float(np.median(np.diff(dataset.frame_times))) > 1.0
-        kind = "nadir" if sparse else "klt-vo"
+        kind = "nadir" if sparse else "slam"
     if kind == "nadir":
         from evp.vo.nadir_homography import NadirHomographyOdometry
 
         return NadirHomographyOdometry(camera)
+    if kind == "slam":
+        from evp.slam.system import SlamSystem
+
+        return SlamSystem(camera, settings.orb, settings.slam)
     from evp.vo.klt_vo import KltVisualOdometry
 
     return KltVisualOdometry(camera, settings.vo)

@@ -18,6 +18,14 @@ def se3(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
     return T
 
 
+def nearest_rotation(R: np.ndarray) -> np.ndarray:
+    """The rotation closest to a 3x3 matrix (Frobenius norm): removes the scale and shear that
+    numerical decompositions leave, which a chain of poses would otherwise compound."""
+    U, _, Vt = np.linalg.svd(R)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
 def se3_inverse(T: np.ndarray) -> np.ndarray:
     """Inverse of a rigid transform (or a stack of them, shape (..., 4, 4))."""
     R = T[..., :3, :3]

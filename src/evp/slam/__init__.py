@@ -1,0 +1,1 @@
+"""ORB-SLAM-style monocular SLAM: map, tracking, local mapping, relocalisation."""

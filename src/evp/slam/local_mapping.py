@@ -1,0 +1,307 @@
+"""Local mapping (ORB-SLAM's LocalMapping): for each new keyframe, register its observations,
+cull doubtful recent points, triangulate new points with covisible keyframes, fuse duplicates,
+run local bundle adjustment and cull redundant keyframes.
+
+:class:`LocalMapper` does the work for one keyframe; :class:`MappingWorker` runs it in its own
+thread fed by a keyframe queue. The bundle adjustment solves on a snapshot without the map lock,
+so tracking goes on meanwhile.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from evp.config import SlamSettings
+from evp.geometry.two_view import CHI2_1DOF, check_points, triangulate
+from evp.slam.bundle_adjustment import BundleProblem, bundle_adjust
+from evp.slam.map import KeyFrame, Map
+from evp.slam.projection import project_points
+from evp.vision.matching import TH_LOW, best_unique, hamming_matrix, match_in_window, rotation_consistent
+from evp.vision.orb import OrbExtractor
+
+
+@dataclass
+class NewKeyFrame:
+    keyframe: KeyFrame
+    matched_points: np.ndarray  # (N,) map point id per feature at tracking time, -1 where none
+
+
+class LocalMapper:
+    def __init__(self, slam_map: Map, extractor: OrbExtractor, settings: SlamSettings):
+        self.map = slam_map
+        self.extractor = extractor
+        self.settings = settings
+        self.K = extractor.camera.K
+        self.recent_points: list[int] = []
+
+    def process(self, item: NewKeyFrame) -> None:
+        kf = item.keyframe
+        with self.map.lock:
+            if kf.id not in self.map.keyframes:
+                return
+            self._register_observations(kf, item.matched_points)
+            self.map.update_covisibility(kf)
+            self._cull_recent_points(kf)
+            self._triangulate_new_points(kf)
+            self._fuse_into_neighbours(kf)
+            self.map.update_covisibility(kf)
+            problem, kf_ids, point_ids = self._local_window(kf)
+        if problem is not None:
+            poses, points, chi2 = bundle_adjust(problem, self.settings.ba_evaluations)
+            with self.map.lock:
+                self._write_back(problem, kf_ids, point_ids, poses, points, chi2)
+                self._cull_keyframes(kf)
+
+    # --- steps ----------------------------------------------------------------------------
+
+    def _register_observations(self, kf: KeyFrame, matched: np.ndarray) -> None:
+        for index in np.flatnonzero(matched >= 0):
+            point = self.map.points.get(int(matched[index]))
+            if point is None or kf.id in point.observations:
+                continue
+            self.map.add_observation(point, kf, int(index))
+            self.map.update_point_geometry(point, self.extractor.scale_factors)
+
+    def _cull_recent_points(self, kf: KeyFrame) -> None:
+        kept = []
+        for point_id in self.recent_points:
+            point = self.map.points.get(point_id)
+            if point is None:
+                continue
+            age = kf.id - point.first_kf
+            if point.found_ratio < 0.25 or (age >= 2 and len(point.observations) <= 2):
+                self.map.remove_point(point_id)
+            elif age < 3:
+                kept.append(point_id)
+        self.recent_points = kept
+
+    def _triangulate_new_points(self, kf: KeyFrame) -> None:
+        s = self.settings
+        sigma2 = self.extractor.level_sigma2
+        scale = self.extractor.settings.scale_factor
+        fx = self.K[0, 0]
+        for neighbour_id in kf.best_covisible(s.covisible_keyframes):
+            nb = self.map.keyframes.get(neighbour_id)
+            if nb is None:
+                continue
+            baseline = np.linalg.norm(kf.centre - nb.centre)
+            if baseline / max(self.map.median_depth(nb), 1e-9) < 0.01:
+                continue
+            free_a = np.flatnonzero(kf.point_ids < 0)
+            free_b = np.flatnonzero(nb.point_ids < 0)
+            if len(free_a) == 0 or len(free_b) == 0:
+                continue
+            fa, fb = kf.features, nb.features
+            distances = hamming_matrix(fa.descriptors[free_a], fb.descriptors[free_b])
+            # epipolar constraint: b's keypoint near the line of a's keypoint
+            F = _fundamental(kf.T_cw, nb.T_cw)
+            lines = np.c_[fa.normalised[free_a], np.ones(len(free_a))] @ F.T  # lines in b (normalised)
+            xb = np.c_[fb.normalised[free_b], np.ones(len(free_b))]
+            d2 = (lines @ xb.T) ** 2 / (lines[:, 0:1] ** 2 + lines[:, 1:2] ** 2) * fx * fx
+            distances[d2 > CHI2_1DOF * sigma2[fb.octave[free_b]][None, :]] = 256
+            rows, cols = best_unique(distances, TH_LOW, 0.6)
+            if len(rows) == 0:
+                continue
+            keep = rotation_consistent(fa.angle[free_a][rows], fb.angle[free_b][cols])
+            ia, ib = free_a[rows[keep]], free_b[cols[keep]]
+            points = triangulate(kf.T_cw, nb.T_cw, fa.normalised[ia], fb.normalised[ib])
+            good, _ = check_points(points, kf.T_cw, nb.T_cw, fa.normalised[ia], fb.normalised[ib], fx, sigma2[fa.octave[ia]], sigma2[fb.octave[ib]])
+            # scale consistency: distance ratio agrees with the octave ratio
+            da = np.linalg.norm(points - kf.centre, axis=1)
+            db = np.linalg.norm(points - nb.centre, axis=1)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ratio_dist = da / db
+                ratio_octave = self.extractor.scale_factors[fa.octave[ia]] / self.extractor.scale_factors[fb.octave[ib]]
+            factor = 1.5 * scale
+            good &= (ratio_dist * factor > ratio_octave) & (ratio_dist < ratio_octave * factor)
+            for a, b, position in zip(ia[good], ib[good], points[good], strict=True):
+                if kf.point_ids[a] >= 0 or nb.point_ids[b] >= 0:
+                    continue
+                point = self.map.add_point(position, fa.descriptors[a], kf.id)
+                self.map.add_observation(point, kf, int(a))
+                self.map.add_observation(point, nb, int(b))
+                self.map.update_point_geometry(point, self.extractor.scale_factors)
+                self.recent_points.append(point.id)
+
+    def _fuse_into_neighbours(self, kf: KeyFrame) -> None:
+        """Project the keyframe's points into its neighbours: a match there either adds an
+        observation or merges two map points that are one (ORB-SLAM's Fuse)."""
+        ids = [int(i) for i in kf.point_ids[kf.point_ids >= 0] if int(i) in self.map.points]
+        if not ids:
+            return
+        for neighbour_id in kf.best_covisible(self.settings.covisible_keyframes):
+            nb = self.map.keyframes.get(neighbour_id)
+            if nb is None:
+                continue
+            ids = [i for i in ids if i in self.map.points]
+            candidates = [i for i in ids if nb.id not in self.map.points[i].observations]
+            if not candidates:
+                continue
+            projected = project_points(self.map, candidates, nb.T_cw, self.extractor, self.K)
+            if projected is None:
+                continue
+            rows, uv, level, radius = projected.rows, projected.uv, projected.level, 3.0 * self.extractor.scale_factors[projected.level]
+            descriptors = np.array([self.map.points[candidates[r]].descriptor for r in rows])
+            a, b = match_in_window(descriptors, uv, nb.features.descriptors, nb.features.un_px, radius, TH_LOW, 1.0, level, nb.features.octave)
+            for r, index in zip(a, b, strict=True):
+                point = self.map.points.get(candidates[rows[r]])
+                if point is None or nb.id in point.observations:
+                    continue
+                existing = int(nb.point_ids[index])
+                if existing >= 0 and existing in self.map.points:
+                    keep, drop = (existing, point.id) if len(self.map.points[existing].observations) >= len(point.observations) else (point.id, existing)
+                    self.map.replace_point(drop, keep)
+                    self.map.update_point_geometry(self.map.points[keep], self.extractor.scale_factors)
+                else:
+                    self.map.add_observation(point, nb, int(index))
+
+    def _local_window(self, kf: KeyFrame):
+        local_ids = [kf.id] + [k for k in kf.best_covisible(self.settings.local_ba_keyframes - 1) if k in self.map.keyframes]
+        local = set(local_ids)
+        point_ids = sorted({int(p) for k in local_ids for p in self.map.keyframes[k].point_ids if p >= 0 and int(p) in self.map.points})
+        if len(point_ids) < 10:
+            return None, None, None
+        fixed_ids = sorted({o for p in point_ids for o in self.map.points[p].observations if o not in local and o in self.map.keyframes})
+        kf_ids = local_ids + fixed_ids
+        slot = {k: i for i, k in enumerate(kf_ids)}
+        point_slot = {p: j for j, p in enumerate(point_ids)}
+        pose_index, point_index, observed, sigma = [], [], [], []
+        for p in point_ids:
+            for k, index in self.map.points[p].observations.items():
+                if k in slot:
+                    f = self.map.keyframes[k].features
+                    pose_index.append(slot[k])
+                    point_index.append(point_slot[p])
+                    observed.append(f.un_px[index])
+                    sigma.append(self.extractor.scale_factors[f.octave[index]])
+        fixed = np.array([k not in local for k in kf_ids])
+        if 0 in slot:
+            fixed[slot[0]] = True  # the first keyframe anchors the map
+        # a monocular window needs two fixed poses: one leaves the scale free to drift
+        for k in sorted(local_ids):
+            if fixed.sum() >= 2 or k == kf.id:
+                break
+            fixed[slot[k]] = True
+        problem = BundleProblem(
+            np.array([self.map.keyframes[k].T_cw for k in kf_ids]),
+            np.array([self.map.points[p].position for p in point_ids]),
+            np.array(pose_index),
+            np.array(point_index),
+            np.array(observed).reshape(-1, 2),
+            np.array(sigma),
+            fixed,
+            self.K,
+        )
+        return problem, kf_ids, point_ids
+
+    def _write_back(self, problem: BundleProblem, kf_ids, point_ids, poses, points, chi2) -> None:
+        from evp.geometry.two_view import CHI2_2DOF
+
+        for i, k in enumerate(kf_ids):
+            if not problem.fixed[i] and k in self.map.keyframes:
+                self.map.keyframes[k].T_cw = poses[i]
+        for j, p in enumerate(point_ids):
+            if p in self.map.points:
+                self.map.points[p].position = points[j]
+        for n in np.flatnonzero(~(chi2 < CHI2_2DOF)):
+            point = self.map.points.get(point_ids[problem.point_index[n]])
+            if point is not None:
+                self.map.remove_observation(point, kf_ids[problem.pose_index[n]])
+        for p in point_ids:
+            if p in self.map.points:
+                self.map.update_point_geometry(self.map.points[p], self.extractor.scale_factors)
+
+    def _cull_keyframes(self, kf: KeyFrame) -> None:
+        """Drop neighbours whose points are nearly all seen by 3 other keyframes at the same or a
+        finer scale: they add computation, not information."""
+        for neighbour_id in kf.best_covisible(self.settings.local_ba_keyframes):
+            nb = self.map.keyframes.get(neighbour_id)
+            if nb is None or nb.id == 0 or nb.id == kf.id:
+                continue
+            indices = np.flatnonzero(nb.point_ids >= 0)
+            total, redundant = 0, 0
+            for index in indices:
+                point = self.map.points.get(int(nb.point_ids[index]))
+                if point is None:
+                    continue
+                total += 1
+                level = nb.features.octave[index]
+                seen = sum(1 for k, i in point.observations.items() if k != nb.id and k in self.map.keyframes and self.map.keyframes[k].features.octave[i] <= level + 1)
+                redundant += seen >= 3
+            if total and redundant > self.settings.keyframe_redundancy * total:
+                self.map.remove_keyframe(nb.id)
+
+
+def _fundamental(T1_cw: np.ndarray, T2_cw: np.ndarray) -> np.ndarray:
+    """Essential matrix mapping normalised points of view 1 to epipolar lines in view 2."""
+    T21 = T2_cw @ np.linalg.inv(T1_cw)
+    t = T21[:3, 3]
+    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    return tx @ T21[:3, :3]
+
+
+class MappingWorker:
+    """Runs :class:`LocalMapper` in a thread; ``idle`` tells tracking whether to insert keyframes."""
+
+    def __init__(self, mapper: LocalMapper):
+        self.mapper = mapper
+        self.queue: queue.Queue[NewKeyFrame | None] = queue.Queue()
+        self.mapping_ms: list[float] = []
+        self.max_queue = 0
+        self.error: BaseException | None = None
+        self._busy = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="evp-local-mapping", daemon=True)
+        self._thread.start()
+
+    @property
+    def idle(self) -> bool:
+        return self.queue.empty() and not self._busy.is_set()
+
+    def submit(self, item: NewKeyFrame) -> None:
+        self._busy.set()
+        self.queue.put(item)
+        self.max_queue = max(self.max_queue, self.queue.qsize())
+
+    def _run(self) -> None:
+        while True:
+            item = self.queue.get()
+            if item is None:
+                return
+            self._busy.set()
+            start = time.perf_counter()
+            try:
+                self.mapper.process(item)
+            except Exception as exc:  # surfaced to the caller by finish(); the thread must not die silently
+                self.error = exc
+            self.mapping_ms.append((time.perf_counter() - start) * 1000.0)
+            if self.queue.empty():
+                self._busy.clear()
+
+    def finish(self) -> None:
+        self.queue.put(None)
+        self._thread.join()
+        if self.error is not None:
+            raise self.error
+
+
+class InlineMapping:
+    """The same interface, processing each keyframe at once (deterministic runs and tests)."""
+
+    def __init__(self, mapper: LocalMapper):
+        self.mapper = mapper
+        self.mapping_ms: list[float] = []
+        self.max_queue = 0
+        self.idle = True
+
+    def submit(self, item: NewKeyFrame) -> None:
+        start = time.perf_counter()
+        self.mapper.process(item)
+        self.mapping_ms.append((time.perf_counter() - start) * 1000.0)
+
+    def finish(self) -> None:
+        return None

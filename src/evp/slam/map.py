@@ -1,0 +1,263 @@
+"""The SLAM map: keyframes, map points, the covisibility graph; save/load and PLY export.
+
+Poses are stored as ``T_cw`` (world to camera), the form projection needs. All mutation goes
+through :class:`Map` methods; callers hold ``Map.lock`` while tracking reads and mapping writes.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from evp.geometry.transforms import se3_inverse
+from evp.vision.orb import Features
+
+
+@dataclass
+class KeyFrame:
+    id: int
+    timestamp: float
+    T_cw: np.ndarray
+    features: Features
+    point_ids: np.ndarray  # (N,) map point id per feature, -1 where none
+    thumbnail: np.ndarray  # global appearance descriptor (see relocalisation)
+    covisible: Counter = field(default_factory=Counter)  # keyframe id -> shared points
+
+    @property
+    def centre(self) -> np.ndarray:
+        return -self.T_cw[:3, :3].T @ self.T_cw[:3, 3]
+
+    def best_covisible(self, count: int, min_weight: int = 1) -> list[int]:
+        return [k for k, w in self.covisible.most_common(count) if w >= min_weight]
+
+
+@dataclass
+class MapPoint:
+    id: int
+    position: np.ndarray
+    descriptor: np.ndarray  # (32,) uint8, the most representative of its observations
+    first_kf: int
+    observations: dict[int, int] = field(default_factory=dict)  # keyframe id -> feature index
+    normal: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    min_distance: float = 0.0
+    max_distance: float = np.inf
+    visible: int = 1  # frames in whose frustum it was
+    found: int = 1  # frames that matched it
+
+    @property
+    def found_ratio(self) -> float:
+        return self.found / max(1, self.visible)
+
+
+class Map:
+    def __init__(self) -> None:
+        self.keyframes: dict[int, KeyFrame] = {}
+        self.points: dict[int, MapPoint] = {}
+        self.lock = threading.RLock()
+        self._next_kf = 0
+        self._next_point = 0
+        # culled keyframe id -> (parent keyframe id, T_kf_parent): frames that referenced a culled
+        # keyframe still find their pose through its parent
+        self.removed_parents: dict[int, tuple[int, np.ndarray]] = {}
+
+    # --- creation -----------------------------------------------------------------------
+
+    def add_keyframe(self, timestamp: float, T_cw: np.ndarray, features: Features, thumbnail: np.ndarray) -> KeyFrame:
+        kf = KeyFrame(self._next_kf, timestamp, T_cw.copy(), features, np.full(len(features), -1, int), thumbnail)
+        self._next_kf += 1
+        self.keyframes[kf.id] = kf
+        return kf
+
+    def add_point(self, position: np.ndarray, descriptor: np.ndarray, first_kf: int) -> MapPoint:
+        point = MapPoint(self._next_point, np.asarray(position, float).copy(), descriptor.copy(), first_kf)
+        self._next_point += 1
+        self.points[point.id] = point
+        return point
+
+    def add_observation(self, point: MapPoint, kf: KeyFrame, index: int) -> None:
+        old = kf.point_ids[index]
+        if old >= 0 and old != point.id and old in self.points:
+            self.points[old].observations.pop(kf.id, None)
+        kf.point_ids[index] = point.id
+        point.observations[kf.id] = index
+
+    # --- removal ------------------------------------------------------------------------
+
+    def remove_observation(self, point: MapPoint, kf_id: int) -> None:
+        index = point.observations.pop(kf_id, None)
+        kf = self.keyframes.get(kf_id)
+        if index is not None and kf is not None and kf.point_ids[index] == point.id:
+            kf.point_ids[index] = -1
+        if len(point.observations) < 2:
+            self.remove_point(point.id)
+
+    def remove_point(self, point_id: int) -> None:
+        point = self.points.pop(point_id, None)
+        if point is None:
+            return
+        for kf_id, index in point.observations.items():
+            kf = self.keyframes.get(kf_id)
+            if kf is not None and kf.point_ids[index] == point_id:
+                kf.point_ids[index] = -1
+
+    def remove_keyframe(self, kf_id: int) -> None:
+        kf = self.keyframes.pop(kf_id)
+        parent = next((k for k in kf.best_covisible(len(kf.covisible)) if k in self.keyframes), None)
+        if parent is not None:
+            self.removed_parents[kf_id] = (parent, kf.T_cw @ se3_inverse(self.keyframes[parent].T_cw))
+        for point_id in kf.point_ids[kf.point_ids >= 0]:
+            point = self.points.get(int(point_id))
+            if point is not None:
+                point.observations.pop(kf_id, None)
+                if len(point.observations) < 2:
+                    self.remove_point(point.id)
+        for other in kf.covisible:
+            if other in self.keyframes:
+                self.keyframes[other].covisible.pop(kf_id, None)
+
+    def replace_point(self, old_id: int, new_id: int) -> None:
+        """Merge a duplicate: every observation of ``old_id`` moves to ``new_id``."""
+        old, new = self.points.get(old_id), self.points.get(new_id)
+        if old is None or new is None or old_id == new_id:
+            return
+        for kf_id, index in list(old.observations.items()):
+            kf = self.keyframes.get(kf_id)
+            if kf is None:
+                continue
+            if kf_id in new.observations:
+                kf.point_ids[index] = -1
+            else:
+                self.add_observation(new, kf, index)
+        new.visible += old.visible
+        new.found += old.found
+        old.observations.clear()
+        self.points.pop(old_id, None)
+
+    # --- derived state ------------------------------------------------------------------
+
+    def update_point_geometry(self, point: MapPoint, scale_factors: np.ndarray) -> None:
+        """Mean viewing direction, scale-invariance distance range, representative descriptor."""
+        kfs = [(self.keyframes[k], i) for k, i in point.observations.items() if k in self.keyframes]
+        if not kfs:
+            return
+        rays = np.array([point.position - kf.centre for kf, _ in kfs])
+        norms = np.linalg.norm(rays, axis=1, keepdims=True)
+        normal = (rays / np.maximum(norms, 1e-12)).mean(axis=0)
+        point.normal = normal / max(np.linalg.norm(normal), 1e-12)
+        first = point.first_kf
+        ref_kf, ref_index = (self.keyframes[first], point.observations[first]) if first in point.observations and first in self.keyframes else kfs[0]
+        distance = float(np.linalg.norm(point.position - ref_kf.centre))
+        level = ref_kf.features.octave[ref_index]
+        point.max_distance = distance * scale_factors[level]
+        point.min_distance = point.max_distance / scale_factors[-1]
+        descriptors = np.array([kf.features.descriptors[i] for kf, i in kfs])
+        if len(descriptors) > 2:
+            bits = np.unpackbits(descriptors, axis=1).astype(np.int16)
+            distances = np.abs(bits[:, None, :] - bits[None, :, :]).sum(axis=2)
+            point.descriptor = descriptors[int(np.argmin(np.median(distances, axis=1)))].copy()
+        else:
+            point.descriptor = descriptors[0].copy()
+
+    def update_covisibility(self, kf: KeyFrame) -> None:
+        """Recount the points ``kf`` shares with every other keyframe (both directions)."""
+        shared: Counter = Counter()
+        for point_id in kf.point_ids[kf.point_ids >= 0]:
+            point = self.points.get(int(point_id))
+            if point is None:
+                continue
+            shared.update(k for k in point.observations if k != kf.id)
+        for other_id in list(kf.covisible):
+            if other_id not in shared and other_id in self.keyframes:
+                self.keyframes[other_id].covisible.pop(kf.id, None)
+        kf.covisible = shared
+        for other_id, weight in shared.items():
+            if other_id in self.keyframes:
+                self.keyframes[other_id].covisible[kf.id] = weight
+
+    def median_depth(self, kf: KeyFrame) -> float:
+        ids = kf.point_ids[kf.point_ids >= 0]
+        positions = np.array([self.points[int(i)].position for i in ids if int(i) in self.points]).reshape(-1, 3)
+        if len(positions) == 0:
+            return 1.0
+        depth = positions @ kf.T_cw[2, :3] + kf.T_cw[2, 3]
+        return float(np.median(depth))
+
+    def point_array(self) -> tuple[np.ndarray, np.ndarray]:
+        ids = np.array(sorted(self.points), dtype=int)
+        positions = np.array([self.points[i].position for i in ids]).reshape(-1, 3)
+        return ids, positions
+
+    # --- persistence --------------------------------------------------------------------
+
+    def keyframe_poses(self) -> tuple[np.ndarray, np.ndarray]:
+        """Timestamps and ``T_world_cam`` of the keyframes in time order."""
+        kfs = sorted(self.keyframes.values(), key=lambda k: k.timestamp)
+        return np.array([k.timestamp for k in kfs]), np.array([se3_inverse(k.T_cw) for k in kfs]).reshape(-1, 4, 4)
+
+    def write_ply(self, path: Path) -> None:
+        """Map points as an ASCII PLY point cloud (opens in MeshLab, CloudCompare, Open3D)."""
+        _, positions = self.point_array()
+        header = f"ply\nformat ascii 1.0\ncomment EVP map points\nelement vertex {len(positions)}\nproperty double x\nproperty double y\nproperty double z\nend_header\n"
+        with Path(path).open("w") as handle:
+            handle.write(header)
+            np.savetxt(handle, positions, fmt="%.9g")
+
+    def save(self, path: Path) -> None:
+        """Everything needed to relocalise against and extend the map later (one .npz file)."""
+        kfs = sorted(self.keyframes.values(), key=lambda k: k.id)
+        point_ids, positions = self.point_array()
+        arrays = {
+            "kf_ids": np.array([k.id for k in kfs], int),
+            "kf_timestamps": np.array([k.timestamp for k in kfs]),
+            "kf_T_cw": np.array([k.T_cw for k in kfs]).reshape(-1, 4, 4),
+            "kf_thumbnails": np.array([k.thumbnail for k in kfs]),
+            "kf_sizes": np.array([len(k.features) for k in kfs], int),
+            "point_ids": point_ids,
+            "point_positions": positions,
+            "point_descriptors": np.array([self.points[i].descriptor for i in point_ids], np.uint8).reshape(-1, 32),
+            "point_first_kf": np.array([self.points[i].first_kf for i in point_ids], int),
+        }
+        for name in ("px", "un_px", "normalised", "octave", "angle", "descriptors"):
+            arrays[f"feat_{name}"] = np.concatenate([getattr(k.features, name) for k in kfs]) if kfs else np.zeros(0)
+        arrays["feat_point_ids"] = np.concatenate([k.point_ids for k in kfs]) if kfs else np.zeros(0, int)
+        meta = {"format": "evp-map", "version": 1, "next_kf": self._next_kf, "next_point": self._next_point}
+        np.savez_compressed(Path(path), meta=np.array(json.dumps(meta)), **arrays)
+
+    @classmethod
+    def load(cls, path: Path, scale_factors: np.ndarray) -> Map:
+        from evp.errors import EvpError
+
+        try:
+            data = np.load(Path(path), allow_pickle=False)
+            meta = json.loads(str(data["meta"]))
+        except (OSError, ValueError, KeyError) as exc:
+            raise EvpError(f"{path}: not an EVP map file ({exc})") from exc
+        if meta.get("format") != "evp-map":
+            raise EvpError(f"{path}: not an EVP map file")
+        result = cls()
+        offsets = np.r_[0, np.cumsum(data["kf_sizes"])]
+        for row, kf_id in enumerate(data["kf_ids"]):
+            a, b = offsets[row], offsets[row + 1]
+            features = Features(*(data[f"feat_{n}"][a:b] for n in ("px", "un_px", "normalised", "octave", "angle", "descriptors")))
+            kf = KeyFrame(int(kf_id), float(data["kf_timestamps"][row]), data["kf_T_cw"][row], features, data["feat_point_ids"][a:b].astype(int), data["kf_thumbnails"][row])
+            result.keyframes[kf.id] = kf
+        for row, point_id in enumerate(data["point_ids"]):
+            result.points[int(point_id)] = MapPoint(int(point_id), data["point_positions"][row], data["point_descriptors"][row], int(data["point_first_kf"][row]))
+        for kf in result.keyframes.values():
+            for index in np.flatnonzero(kf.point_ids >= 0):
+                point = result.points.get(int(kf.point_ids[index]))
+                if point is None:
+                    kf.point_ids[index] = -1
+                else:
+                    point.observations[kf.id] = int(index)
+        for kf in result.keyframes.values():
+            result.update_covisibility(kf)
+        for point in result.points.values():
+            result.update_point_geometry(point, scale_factors)
+        result._next_kf, result._next_point = meta["next_kf"], meta["next_point"]
+        return result

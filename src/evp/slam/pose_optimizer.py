@@ -1,0 +1,95 @@
+"""Pose-only optimisation: one camera pose against fixed 3-D points (ORB-SLAM's PoseOptimization).
+
+A 6-parameter problem, so a small Gauss-Newton loop with a Huber kernel is the right tool here;
+every larger problem goes to the bundle adjuster's solver library. Four rounds classify
+observations as inliers or outliers by their chi-square error (the robust kernel is dropped in
+the last rounds, as ORB-SLAM does) so that a bad match cannot drag the pose.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from evp.geometry.transforms import nearest_rotation
+from evp.geometry.two_view import CHI2_2DOF
+
+HUBER_DELTA = np.sqrt(CHI2_2DOF)
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+
+
+def apply_increment(T_cw: np.ndarray, xi: np.ndarray) -> np.ndarray:
+    """Left-multiply by exp of ``xi = (omega, v)``: rotation vector then translation."""
+    R = cv2.Rodrigues(xi[:3].reshape(3, 1))[0]
+    out = np.eye(4)
+    out[:3, :3] = nearest_rotation(R @ T_cw[:3, :3])
+    out[:3, 3] = R @ T_cw[:3, 3] + xi[3:]
+    return out
+
+
+def reprojection_chi2(T_cw: np.ndarray, points: np.ndarray, observed: np.ndarray, fx: float, fy: float, cx: float, cy: float, inv_sigma2: np.ndarray) -> np.ndarray:
+    pc = points @ T_cw[:3, :3].T + T_cw[:3, 3]
+    z = pc[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = fx * pc[:, 0] / z + cx
+        v = fy * pc[:, 1] / z + cy
+    chi2 = ((u - observed[:, 0]) ** 2 + (v - observed[:, 1]) ** 2) * inv_sigma2
+    return np.where(z > 0, chi2, np.inf)
+
+
+def optimise_pose(
+    T_cw: np.ndarray,
+    points: np.ndarray,
+    observed: np.ndarray,
+    inv_sigma2: np.ndarray,
+    K: np.ndarray,
+    rounds: int = 4,
+    iterations: int = 10,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Refined ``T_cw`` and the inlier mask; ``observed`` are undistorted pixel coordinates."""
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    T = T_cw.copy()
+    inlier = np.ones(len(points), bool)
+    for round_index in range(rounds):
+        robust = round_index < rounds - 2
+        for _ in range(iterations):
+            use = inlier
+            if use.sum() < 3:
+                break
+            P, obs, w_info = points[use], observed[use], inv_sigma2[use]
+            pc = P @ T[:3, :3].T + T[:3, 3]
+            x, y, z = pc[:, 0], pc[:, 1], np.maximum(pc[:, 2], 1e-6)
+            iz = 1.0 / z
+            r = np.stack([fx * x * iz + cx - obs[:, 0], fy * y * iz + cy - obs[:, 1]], axis=1)
+            # d(residual)/d(point in camera), then d(point)/d(xi) = [-[pc]x | I]
+            J = np.zeros((len(P), 2, 6))
+            J[:, 0, 0] = -fx * x * y * iz * iz
+            J[:, 0, 1] = fx * (1 + x * x * iz * iz)
+            J[:, 0, 2] = -fx * y * iz
+            J[:, 0, 3] = fx * iz
+            J[:, 0, 5] = -fx * x * iz * iz
+            J[:, 1, 0] = -fy * (1 + y * y * iz * iz)
+            J[:, 1, 1] = fy * x * y * iz * iz
+            J[:, 1, 2] = fy * x * iz
+            J[:, 1, 4] = fy * iz
+            J[:, 1, 5] = -fy * y * iz * iz
+            chi2 = np.sum(r * r, axis=1) * w_info
+            weight = w_info.copy()
+            if robust:
+                e = np.sqrt(chi2)
+                weight *= np.where(e <= HUBER_DELTA, 1.0, HUBER_DELTA / np.maximum(e, 1e-12))
+            H = np.einsum("n,nki,nkj->ij", weight, J, J)
+            g = np.einsum("n,nki,nk->i", weight, J, r)
+            try:
+                xi = -np.linalg.solve(H + 1e-9 * np.eye(6), g)
+            except np.linalg.LinAlgError:
+                break
+            T = apply_increment(T, xi)
+            if np.linalg.norm(xi) < 1e-10:
+                break
+        chi2_all = reprojection_chi2(T, points, observed, fx, fy, cx, cy, inv_sigma2)
+        inlier = chi2_all < CHI2_2DOF
+    return T, inlier

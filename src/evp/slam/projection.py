@@ -1,0 +1,62 @@
+"""Which map points a camera should see, where, and at which pyramid level (ORB-SLAM's
+isInFrustum, vectorised)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from evp.slam.map import Map
+from evp.vision.orb import OrbExtractor
+
+MIN_VIEW_COS = 0.5  # 60 degrees from the point's mean viewing direction
+
+
+@dataclass
+class Projection:
+    rows: np.ndarray  # indices into the ids given, of points in the frustum
+    uv: np.ndarray  # (n, 2) undistorted pixel coordinates
+    level: np.ndarray  # (n,) predicted pyramid level
+    view_cos: np.ndarray  # (n,) cosine between the viewing ray and the point's mean direction
+
+
+def undistorted_bounds(extractor: OrbExtractor) -> tuple[float, float, float, float]:
+    """Box (u_min, v_min, u_max, v_max) of the image in undistorted pixel coordinates."""
+    camera = extractor.camera
+    w, h = camera.width - 1, camera.height - 1
+    edge = np.linspace(0, 1, 21)
+    border = np.r_[np.c_[edge * w, 0 * edge], np.c_[edge * w, 0 * edge + h], np.c_[0 * edge, edge * h], np.c_[0 * edge + w, edge * h]]
+    un = camera.undistort_pixels(border)
+    return float(un[:, 0].min()), float(un[:, 1].min()), float(un[:, 0].max()), float(un[:, 1].max())
+
+
+def project_points(slam_map: Map, ids: list[int], T_cw: np.ndarray, extractor: OrbExtractor, K: np.ndarray, bounds=None) -> Projection | None:
+    if not ids:
+        return None
+    points = [slam_map.points[i] for i in ids]
+    positions = np.array([p.position for p in points])
+    normals = np.array([p.normal for p in points])
+    min_d = np.array([p.min_distance for p in points])
+    max_d = np.array([p.max_distance for p in points])
+    pc = positions @ T_cw[:3, :3].T + T_cw[:3, 3]
+    z = pc[:, 2]
+    ok = z > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = K[0, 0] * pc[:, 0] / z + K[0, 2]
+        v = K[1, 1] * pc[:, 1] / z + K[1, 2]
+    u_min, v_min, u_max, v_max = bounds if bounds is not None else undistorted_bounds(extractor)
+    ok &= (u >= u_min) & (u <= u_max) & (v >= v_min) & (v <= v_max)
+    centre = -T_cw[:3, :3].T @ T_cw[:3, 3]
+    ray = positions - centre
+    distance = np.linalg.norm(ray, axis=1)
+    ok &= (distance >= 0.8 * min_d) & (distance <= 1.2 * max_d)
+    view_cos = np.sum(ray * normals, axis=1) / np.maximum(distance, 1e-12)
+    ok &= view_cos >= MIN_VIEW_COS
+    rows = np.flatnonzero(ok)
+    if len(rows) == 0:
+        return None
+    with np.errstate(divide="ignore"):
+        level = np.ceil(np.log(max_d[rows] / distance[rows]) / np.log(extractor.settings.scale_factor))
+    level = np.clip(np.nan_to_num(level, nan=0.0), 0, len(extractor.scale_factors) - 1).astype(int)
+    return Projection(rows, np.c_[u[rows], v[rows]], level, view_cos[rows])

@@ -1,0 +1,459 @@
+"""The monocular SLAM system: ``feed(frame) -> PoseEstimate`` (ORB-SLAM's Tracking thread, with
+local mapping in a worker and relocalisation when lost).
+
+Per frame: ORB extraction; before initialisation, two-view initialisation against a reference
+frame; then the constant-velocity motion model with guided search (fallback: matching against the
+reference keyframe), tracking of the local map (points of covisible keyframes) and pose-only
+optimisation; when lost, relocalisation against the keyframes (the map is never reset). Frame
+poses are stored relative to their reference keyframe, so the final trajectory follows the
+keyframes refined by bundle adjustment (as ORB-SLAM saves it), while the live answer is the pose
+known at that moment.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from evp.config import OrbSettings, SlamSettings
+from evp.errors import EvpError
+from evp.geometry.transforms import se3_inverse
+from evp.geometry.two_view import initial_two_view
+from evp.slam.bundle_adjustment import BundleProblem, bundle_adjust
+from evp.slam.local_mapping import InlineMapping, LocalMapper, MappingWorker, NewKeyFrame
+from evp.slam.map import KeyFrame, Map
+from evp.slam.pose_optimizer import optimise_pose
+from evp.slam.projection import project_points, undistorted_bounds
+from evp.slam.relocalisation import rank_keyframes, thumbnail
+from evp.types import CameraModel, Frame, PoseEstimate, TrackingState
+from evp.vision.matching import TH_HIGH, TH_LOW, match_descriptors, match_in_window, rotation_consistent
+from evp.vision.orb import Features, OrbExtractor
+
+
+@dataclass
+class _TrackedFrame:
+    """What the next frame needs from this one."""
+
+    features: Features
+    T_cw: np.ndarray
+    point_ids: np.ndarray  # (N,) matched map point per feature, -1 where none
+    grey: np.ndarray
+    record: int  # index of its record in SlamSystem.records
+
+
+@dataclass
+class _FrameRecord:
+    timestamp: float
+    reference_kf: int
+    T_frame_ref: np.ndarray  # T_cw(frame) @ inverse(T_cw(reference keyframe))
+    state: TrackingState
+
+
+class SlamSystem:
+    def __init__(self, camera: CameraModel, orb: OrbSettings | None = None, settings: SlamSettings | None = None):
+        self.camera = camera
+        self.settings = settings or SlamSettings()
+        self.extractor = OrbExtractor(orb or OrbSettings(), camera)
+        self.K = camera.K
+        self.bounds = undistorted_bounds(self.extractor)
+        self.map = Map()
+        mapper = LocalMapper(self.map, self.extractor, self.settings)
+        self.mapping = MappingWorker(mapper) if self.settings.mapping == "thread" else InlineMapping(mapper)
+        self.state = TrackingState.NOT_INITIALIZED
+        self.extraction_ms: list[float] = []
+        self.records: list[_FrameRecord] = []
+        self.reset_counter = 0  # bumped on relocalisation (a discontinuity for consumers)
+        self._init_reference: _TrackedFrame | None = None
+        self._last: _TrackedFrame | None = None
+        self._velocity: np.ndarray | None = None
+        self._reference_kf: int | None = None
+        self._frame_count = 0
+        self._last_kf_frame = 0
+        self._last_reloc_frame = -(10**9)
+        self._last_inliers = 0
+        self._pending_timestamp = 0.0
+
+    # --- public ---------------------------------------------------------------------------
+
+    def feed(self, frame: Frame) -> PoseEstimate:
+        grey = self._grey(frame)
+        self._pending_timestamp = frame.timestamp
+        self._frame_count += 1
+        cv2.setRNGSeed(self._frame_count)
+        start = time.perf_counter()
+        features = self.extractor.extract(grey)
+        self.extraction_ms.append((time.perf_counter() - start) * 1000.0)
+        if self.state == TrackingState.NOT_INITIALIZED:
+            T_cw = self._initialise(frame, grey, features)
+        elif self.state == TrackingState.LOST:
+            T_cw = self._relocalise(grey, features)
+        else:
+            T_cw = self._track(grey, features)
+        return self._answer(frame, T_cw)
+
+    def finish(self) -> None:
+        """Wait for local mapping to finish its queue (end of a run)."""
+        self.mapping.finish()
+
+    @property
+    def mapping_ms(self) -> list[float]:
+        return self.mapping.mapping_ms
+
+    def keyframe_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        with self.map.lock:
+            return self.map.keyframe_poses()
+
+    def refined_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        """Timestamps and ``T_world_cam`` of every tracked frame, through the final keyframe poses."""
+        stamps, poses = [], []
+        with self.map.lock:
+            for record in self.records:
+                if record.state not in (TrackingState.OK, TrackingState.RELOCALIZED):
+                    continue
+                T_ref = self._keyframe_pose(record.reference_kf)
+                if T_ref is None:
+                    continue
+                stamps.append(record.timestamp)
+                poses.append(se3_inverse(record.T_frame_ref @ T_ref))
+        return np.array(stamps), np.array(poses).reshape(-1, 4, 4)
+
+    # --- validation -------------------------------------------------------------------------
+
+    def _grey(self, frame: Frame) -> np.ndarray:
+        image = frame.image
+        if image is None or image.size == 0:
+            raise EvpError(f"frame {frame.index} at t={frame.timestamp}: empty image")
+        if image.shape[0] != self.camera.height or image.shape[1] != self.camera.width:
+            raise EvpError(f"frame {frame.index}: image is {image.shape[1]}x{image.shape[0]}, calibration is {self.camera.width}x{self.camera.height}")
+        grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        return grey if grey.dtype == np.uint8 else cv2.normalize(grey, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+
+    # --- initialisation ---------------------------------------------------------------------
+
+    def _initialise(self, frame: Frame, grey: np.ndarray, features: Features) -> np.ndarray | None:
+        s = self.settings
+        reference = self._init_reference
+        if reference is None or len(features) < s.init_min_matches:
+            if len(features) >= s.init_min_matches:
+                self._init_reference = self._untracked(features, grey)
+            return None
+        ref = reference.features
+        rows, cols = match_in_window(ref.descriptors, ref.un_px, features.descriptors, features.un_px, s.init_search_radius_px, TH_LOW, 0.9)
+        keep = rotation_consistent(ref.angle[rows], features.angle[cols])
+        rows, cols = rows[keep], cols[keep]
+        if len(rows) < s.init_min_matches:
+            self._init_reference = self._untracked(features, grey)
+            return None
+        result = initial_two_view(ref.normalised[rows], features.normalised[cols], self.camera.fx, s.init_min_parallax_deg, s.init_min_triangulated, s.homography_ratio)
+        if result is None or result.good.sum() < s.init_min_triangulated:
+            return None
+        with self.map.lock:
+            kf0 = self.map.add_keyframe(self.records[reference.record].timestamp, np.eye(4), ref, thumbnail(reference.grey))
+            kf1 = self.map.add_keyframe(frame.timestamp, result.T21, features, thumbnail(grey))
+            for a, b, position in zip(rows[result.good], cols[result.good], result.points[result.good], strict=True):
+                point = self.map.add_point(position, ref.descriptors[a], kf0.id)
+                self.map.add_observation(point, kf0, int(a))
+                self.map.add_observation(point, kf1, int(b))
+            self._global_bundle_adjustment([kf0, kf1])
+            depth = self.map.median_depth(kf0)
+            if depth <= 0 or len(self.map.points) < s.init_min_triangulated:
+                self._discard_map()
+                return None
+            self._rescale(s.initial_median_depth_m / depth)
+            for point in self.map.points.values():
+                self.map.update_point_geometry(point, self.extractor.scale_factors)
+            self.map.update_covisibility(kf0)
+            self.map.update_covisibility(kf1)
+        first = self.records[reference.record]
+        first.reference_kf, first.T_frame_ref, first.state = kf0.id, np.eye(4), TrackingState.OK
+        self._init_reference = None
+        self._reference_kf = kf1.id
+        self._last_kf_frame = self._frame_count
+        self._velocity = None
+        self._last = _TrackedFrame(features, kf1.T_cw.copy(), kf1.point_ids.copy(), grey, len(self.records))
+        self._last_inliers = int((kf1.point_ids >= 0).sum())
+        self.state = TrackingState.OK
+        return kf1.T_cw.copy()
+
+    def _untracked(self, features: Features, grey: np.ndarray) -> _TrackedFrame:
+        return _TrackedFrame(features, np.eye(4), np.full(len(features), -1), grey, len(self.records))
+
+    def _global_bundle_adjustment(self, keyframes: list[KeyFrame]) -> None:
+        """Initial map: optimise both keyframes and all points, the first keyframe fixed."""
+        ids = [kf.id for kf in keyframes]
+        point_ids = sorted(self.map.points)
+        slot = {k: i for i, k in enumerate(ids)}
+        obs = [(slot[k], j, self.map.keyframes[k].features, i) for j, p in enumerate(point_ids) for k, i in self.map.points[p].observations.items()]
+        problem = BundleProblem(
+            np.array([kf.T_cw for kf in keyframes]),
+            np.array([self.map.points[p].position for p in point_ids]),
+            np.array([o[0] for o in obs]),
+            np.array([o[1] for o in obs]),
+            np.array([o[2].un_px[o[3]] for o in obs]),
+            np.array([self.extractor.scale_factors[o[2].octave[o[3]]] for o in obs]),
+            np.array([True] + [False] * (len(ids) - 1)),
+            self.K,
+        )
+        poses, points, chi2 = bundle_adjust(problem, evaluations=20)
+        for kf, T in zip(keyframes, poses, strict=True):
+            kf.T_cw = T
+        for j, p in enumerate(point_ids):
+            self.map.points[p].position = points[j]
+        from evp.geometry.two_view import CHI2_2DOF
+
+        for n in np.flatnonzero(~(chi2 < CHI2_2DOF)):
+            point = self.map.points.get(point_ids[problem.point_index[n]])
+            if point is not None:
+                self.map.remove_observation(point, ids[problem.pose_index[n]])
+
+    def _rescale(self, factor: float) -> None:
+        for kf in self.map.keyframes.values():
+            kf.T_cw[:3, 3] *= factor
+        for point in self.map.points.values():
+            point.position *= factor
+
+    def _discard_map(self) -> None:
+        for kf_id in list(self.map.keyframes):
+            self.map.remove_keyframe(kf_id)
+        self.map.points.clear()
+
+    # --- tracking -------------------------------------------------------------------------
+
+    def _track(self, grey: np.ndarray, features: Features) -> np.ndarray | None:
+        with self.map.lock:
+            matched = np.full(len(features), -1)
+            T_cw = None
+            if self._velocity is not None:
+                T_cw = self._track_motion_model(features, matched)
+            if T_cw is None:
+                matched[:] = -1
+                T_cw = self._track_reference_keyframe(features, matched)
+            if T_cw is not None:
+                T_cw, inliers = self._track_local_map(features, matched, T_cw)
+                needed = self.settings.min_relocalised_inliers if self._frame_count - self._last_reloc_frame < 30 else self.settings.min_tracked_inliers
+                if inliers < needed:
+                    T_cw = None
+            if T_cw is None:
+                self.state = TrackingState.LOST
+                self._velocity = None
+                return None
+            self._velocity = T_cw @ se3_inverse(self._last.T_cw)
+            self._last_inliers = inliers
+            self._last = _TrackedFrame(features, T_cw, matched.copy(), grey, len(self.records))
+            if self._need_keyframe(inliers):
+                self._insert_keyframe(features, T_cw, matched, grey)
+        return T_cw
+
+    def _map_point_arrays(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        points = [self.map.points[int(i)] for i in ids]
+        return np.array([p.position for p in points]).reshape(-1, 3), np.array([p.descriptor for p in points]).reshape(-1, 32)
+
+    def _optimise(self, features: Features, matched: np.ndarray, T_cw: np.ndarray) -> tuple[np.ndarray, int]:
+        """Pose-only optimisation on the current matches; outliers are unmatched."""
+        rows = np.flatnonzero(matched >= 0)
+        if len(rows) < 6:
+            return T_cw, 0
+        positions, _ = self._map_point_arrays(matched[rows])
+        inv_sigma2 = self.extractor.inv_level_sigma2[features.octave[rows]]
+        T_cw, inlier = optimise_pose(T_cw, positions, features.un_px[rows], inv_sigma2, self.K)
+        matched[rows[~inlier]] = -1
+        return T_cw, int(inlier.sum())
+
+    def _live_ids(self, ids: np.ndarray) -> np.ndarray:
+        return np.array([i for i in ids if i >= 0 and int(i) in self.map.points], dtype=int)
+
+    def _track_motion_model(self, features: Features, matched: np.ndarray) -> np.ndarray | None:
+        last = self._last
+        T_pred = self._velocity @ last.T_cw
+        rows_last = np.flatnonzero(last.point_ids >= 0)
+        rows_last = np.array([r for r in rows_last if int(last.point_ids[r]) in self.map.points], dtype=int)
+        if len(rows_last) < 10:
+            return None
+        ids = last.point_ids[rows_last]
+        positions, descriptors = self._map_point_arrays(ids)
+        pc = positions @ T_pred[:3, :3].T + T_pred[:3, 3]
+        front = pc[:, 2] > 0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = np.c_[self.K[0, 0] * pc[:, 0] / pc[:, 2] + self.K[0, 2], self.K[1, 1] * pc[:, 1] / pc[:, 2] + self.K[1, 2]]
+        for widen in (1.0, 2.0):
+            radius = widen * self.settings.motion_search_radius_px * self.extractor.scale_factors[last.features.octave[rows_last]]
+            a, b = match_in_window(descriptors[front], uv[front], features.descriptors, features.un_px, radius[front], TH_HIGH, 0.9, last.features.octave[rows_last][front], features.octave)
+            keep = rotation_consistent(last.features.angle[rows_last][front][a], features.angle[b])
+            a, b = a[keep], b[keep]
+            if len(a) >= 20:
+                break
+        if len(a) < 20:
+            return None
+        matched[b] = ids[front][a]
+        T_cw, inliers = self._optimise(features, matched, T_pred)
+        return T_cw if inliers >= 10 else None
+
+    def _track_reference_keyframe(self, features: Features, matched: np.ndarray) -> np.ndarray | None:
+        kf = self.map.keyframes.get(self._reference_kf)
+        if kf is None:
+            kf = self.map.keyframes[max(self.map.keyframes)]
+            self._reference_kf = kf.id
+        rows = np.array([r for r in np.flatnonzero(kf.point_ids >= 0) if int(kf.point_ids[r]) in self.map.points], dtype=int)
+        if len(rows) < 15:
+            return None
+        a, b = match_descriptors(kf.features.descriptors[rows], features.descriptors, TH_LOW, 0.7)
+        keep = rotation_consistent(kf.features.angle[rows][a], features.angle[b])
+        a, b = a[keep], b[keep]
+        if len(a) < 15:
+            return None
+        matched[b] = kf.point_ids[rows][a]
+        T_cw, inliers = self._optimise(features, matched, self._last.T_cw)
+        return T_cw if inliers >= 10 else None
+
+    def _local_keyframes(self, matched: np.ndarray) -> list[int]:
+        votes: dict[int, int] = {}
+        for point_id in matched[matched >= 0]:
+            point = self.map.points.get(int(point_id))
+            if point is None:
+                continue
+            for kf_id in point.observations:
+                votes[kf_id] = votes.get(kf_id, 0) + 1
+        if not votes:
+            return []
+        first = sorted(votes, key=lambda k: -votes[k])[:40]
+        self._reference_kf = first[0]
+        local = list(first)
+        seen = set(local)
+        for kf_id in first:
+            kf = self.map.keyframes.get(kf_id)
+            if kf is None:
+                continue
+            for neighbour in kf.best_covisible(10):
+                if neighbour not in seen and neighbour in self.map.keyframes:
+                    seen.add(neighbour)
+                    local.append(neighbour)
+            if len(local) >= 80:
+                break
+        return [k for k in local if k in self.map.keyframes]
+
+    def _track_local_map(self, features: Features, matched: np.ndarray, T_cw: np.ndarray) -> tuple[np.ndarray, int]:
+        local = self._local_keyframes(matched)
+        already = set(int(i) for i in matched[matched >= 0])
+        ids = sorted({int(p) for k in local for p in self.map.keyframes[k].point_ids if p >= 0 and int(p) not in already and int(p) in self.map.points})
+        projection = project_points(self.map, ids, T_cw, self.extractor, self.K, self.bounds)
+        if projection is not None:
+            candidates = [ids[r] for r in projection.rows]
+            for point_id in candidates:
+                self.map.points[point_id].visible += 1
+            free = np.flatnonzero(matched < 0)
+            descriptors = np.array([self.map.points[i].descriptor for i in candidates])
+            radius = np.where(projection.view_cos > 0.998, 2.5, 4.0) * self.settings.local_map_search_radius_px / 4.0 * self.extractor.scale_factors[projection.level]
+            a, b = match_in_window(descriptors, projection.uv, features.descriptors[free], features.un_px[free], radius, TH_HIGH, 0.8, projection.level, features.octave[free])
+            matched[free[b]] = np.array(candidates, dtype=int)[a]
+        T_cw, inliers = self._optimise(features, matched, T_cw)
+        for point_id in matched[matched >= 0]:
+            point = self.map.points.get(int(point_id))
+            if point is not None:
+                point.found += 1
+        return T_cw, inliers
+
+    # --- keyframes --------------------------------------------------------------------------
+
+    def _need_keyframe(self, inliers: int) -> bool:
+        s = self.settings
+        n_kfs = len(self.map.keyframes)
+        since_kf = self._frame_count - self._last_kf_frame
+        if self._frame_count - self._last_reloc_frame < s.keyframe_max_frames and n_kfs > s.keyframe_max_frames:
+            return False
+        reference = self.map.keyframes.get(self._reference_kf)
+        min_obs = 3 if n_kfs > 2 else 2
+        ref_matches = 0
+        if reference is not None:
+            for point_id in reference.point_ids[reference.point_ids >= 0]:
+                point = self.map.points.get(int(point_id))
+                ref_matches += point is not None and len(point.observations) >= min_obs
+        idle = self.mapping.idle
+        c1 = since_kf >= s.keyframe_max_frames or idle
+        c2 = inliers < s.keyframe_ref_ratio * ref_matches and inliers > 15
+        return bool(c1 and c2 and idle)
+
+    def _insert_keyframe(self, features: Features, T_cw: np.ndarray, matched: np.ndarray, grey: np.ndarray) -> None:
+        kf = self.map.add_keyframe(self._pending_timestamp, T_cw, features, thumbnail(grey))
+        self._reference_kf = kf.id
+        self._last_kf_frame = self._frame_count
+        self.mapping.submit(NewKeyFrame(kf, matched.copy()))
+
+    # --- relocalisation ---------------------------------------------------------------------
+
+    def _relocalise(self, grey: np.ndarray, features: Features) -> np.ndarray | None:
+        with self.map.lock:
+            kf_ids = list(self.map.keyframes)
+            if not kf_ids or len(features) < 20:
+                return None
+            thumbs = np.array([self.map.keyframes[k].thumbnail for k in kf_ids])
+            for kf_id in rank_keyframes(thumbnail(grey), kf_ids, thumbs, 5):
+                T_cw = self._relocalise_against(features, self.map.keyframes[kf_id])
+                if T_cw is not None:
+                    self.state = TrackingState.RELOCALIZED
+                    self.reset_counter += 1
+                    self._last_reloc_frame = self._frame_count
+                    self._reference_kf = kf_id
+                    self._velocity = None
+                    return T_cw
+        return None
+
+    def _relocalise_against(self, features: Features, kf: KeyFrame) -> np.ndarray | None:
+        s = self.settings
+        rows = np.array([r for r in np.flatnonzero(kf.point_ids >= 0) if int(kf.point_ids[r]) in self.map.points], dtype=int)
+        if len(rows) < 15:
+            return None
+        a, b = match_descriptors(kf.features.descriptors[rows], features.descriptors, TH_LOW, 0.75)
+        if len(a) < 15:
+            return None
+        ids = kf.point_ids[rows][a]
+        positions, _ = self._map_point_arrays(ids)
+        ok, rvec, tvec, inliers = cv2.solvePnPRansac(positions, features.un_px[b], self.K, None, iterationsCount=300, reprojectionError=4.0, confidence=0.99, flags=cv2.SOLVEPNP_EPNP)
+        if not ok or inliers is None or len(inliers) < 10:
+            return None
+        T_cw = np.eye(4)
+        T_cw[:3, :3], T_cw[:3, 3] = cv2.Rodrigues(rvec)[0], tvec.ravel()
+        matched = np.full(len(features), -1)
+        matched[b[inliers.ravel()]] = ids[inliers.ravel()]
+        T_cw, count = self._optimise(features, matched, T_cw)
+        if count < 10:
+            return None
+        T_cw, count = self._track_local_map(features, matched, T_cw)
+        if count < s.min_relocalised_inliers:
+            return None
+        self._last = _TrackedFrame(features, T_cw, matched.copy(), self._last.grey if self._last else None, len(self.records))
+        self._last_inliers = count
+        return T_cw
+
+    # --- answers ----------------------------------------------------------------------------
+
+    def _answer(self, frame: Frame, T_cw: np.ndarray | None) -> PoseEstimate:
+        state = self.state
+        if T_cw is None:
+            if state != TrackingState.NOT_INITIALIZED:
+                state = self.state = TrackingState.LOST
+            T_world_cam = se3_inverse(self._last.T_cw) if self._last is not None else np.eye(4)
+            self.records.append(_FrameRecord(frame.timestamp, -1, np.eye(4), state))
+            return PoseEstimate(frame.timestamp, T_world_cam, state, 0)
+        reference = self.map.keyframes.get(self._reference_kf)
+        T_ref = reference.T_cw if reference is not None else np.eye(4)
+        self.records.append(_FrameRecord(frame.timestamp, self._reference_kf if reference is not None else -1, T_cw @ se3_inverse(T_ref), state))
+        if state == TrackingState.RELOCALIZED:
+            self.state = TrackingState.OK
+        quality = int(min(100, 100 * self._last_inliers / max(1, self.extractor.settings.n_features // 4)))
+        return PoseEstimate(frame.timestamp, se3_inverse(T_cw), state, quality)
+
+    def _keyframe_pose(self, kf_id: int) -> np.ndarray | None:
+        """``T_cw`` of a keyframe, through the parent chain of culled ones."""
+        relative = np.eye(4)
+        for _ in range(1000):
+            kf = self.map.keyframes.get(kf_id)
+            if kf is not None:
+                return relative @ kf.T_cw
+            if kf_id not in self.map.removed_parents:
+                return None
+            kf_id, T_child_parent = self.map.removed_parents[kf_id]
+            relative = relative @ T_child_parent
+        return None

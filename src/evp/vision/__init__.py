@@ -1,0 +1,1 @@
+"""Image features: ORB extraction with an even spatial spread, descriptor matching."""

@@ -1,0 +1,88 @@
+"""Binary descriptor matching, vectorised: brute force with a ratio test, and guided search by
+projection (candidates within a radius and a scale window of where a map point should appear)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+TH_HIGH = 100  # ORB-SLAM's Hamming thresholds
+TH_LOW = 50
+NO_MATCH = 256.0
+
+
+def _signs(descriptors: np.ndarray) -> np.ndarray:
+    return np.unpackbits(descriptors, axis=1).astype(np.float32) * 2.0 - 1.0
+
+
+def hamming_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(len(a), len(b)) Hamming distances between rows of two uint8 descriptor arrays.
+
+    As a matrix product of the bits mapped to +-1 (``d = (256 - a.b) / 2``): BLAS computes the
+    whole table several times faster than pairwise popcounts in NumPy, exactly."""
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros((len(a), len(b)), np.float32)
+    return (256.0 - _signs(a) @ _signs(b).T) * 0.5
+
+
+def best_unique(distances: np.ndarray, max_distance: float, ratio: float) -> tuple[np.ndarray, np.ndarray]:
+    """Row/column pairs: each row's best column if under ``max_distance`` and clearly better than
+    its second best (``best < ratio * second``); a column claimed twice keeps its closest row."""
+    if distances.size == 0 or distances.shape[1] == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    if distances.shape[1] > 1:
+        two = np.partition(distances, 1, axis=1)[:, :2]
+        best, second = two[:, 0], two[:, 1]
+    else:
+        best, second = distances[:, 0], np.full(len(distances), NO_MATCH)
+    cols = np.argmin(distances, axis=1)
+    good = (best <= max_distance) & (best < ratio * second)
+    rows = np.flatnonzero(good)
+    cols, best = cols[good], best[good]
+    order = np.argsort(best, kind="stable")
+    _, first = np.unique(cols[order], return_index=True)
+    keep = np.sort(order[first])
+    return rows[keep], cols[keep]
+
+
+def rotation_consistent(angle_a: np.ndarray, angle_b: np.ndarray, bins: int = 30) -> np.ndarray:
+    """Mask of matches whose orientation change falls in the three most popular histogram bins
+    (ORB-SLAM's check: a rigid image motion rotates all keypoints alike)."""
+    if len(angle_a) == 0:
+        return np.zeros(0, bool)
+    change = np.mod(angle_b - angle_a, 360.0)
+    index = np.minimum((change * bins / 360.0).astype(int), bins - 1)
+    counts = np.bincount(index, minlength=bins)
+    top = np.argsort(counts)[::-1][:3]
+    keep_bins = [b for b in top if counts[b] >= 0.1 * counts[top[0]]]
+    return np.isin(index, keep_bins)
+
+
+def match_descriptors(a: np.ndarray, b: np.ndarray, max_distance: float = TH_LOW, ratio: float = 0.75) -> tuple[np.ndarray, np.ndarray]:
+    return best_unique(hamming_matrix(a, b), max_distance, ratio)
+
+
+def match_in_window(
+    desc_a: np.ndarray,
+    xy_a: np.ndarray,
+    desc_b: np.ndarray,
+    xy_b: np.ndarray,
+    radius: np.ndarray | float,
+    max_distance: float,
+    ratio: float,
+    octave_a: np.ndarray | None = None,
+    octave_b: np.ndarray | None = None,
+    octave_window: int = 1,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Match rows of ``a`` to rows of ``b`` lying within ``radius`` pixels of ``xy_a`` (and, when
+    octaves are given, within ``octave_window`` pyramid levels)."""
+    distances = hamming_matrix(desc_a, desc_b)
+    if distances.size == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    radius = np.broadcast_to(np.asarray(radius, float), (len(xy_a),))
+    dx = xy_a[:, None, 0] - xy_b[None, :, 0]
+    dy = xy_a[:, None, 1] - xy_b[None, :, 1]
+    far = dx * dx + dy * dy > (radius * radius)[:, None]
+    if octave_a is not None and octave_b is not None:
+        far |= np.abs(octave_a[:, None] - octave_b[None, :]) > octave_window
+    distances[far] = NO_MATCH
+    return best_unique(distances, max_distance, ratio)

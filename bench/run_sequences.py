@@ -1,17 +1,22 @@
-"""`evp run` on every shared image sequence with ground truth: one Markdown table.
+"""`evp run` on every shared image sequence with ground truth, plus a rendered seed-000 circle at
+640x380: one Markdown table (the SLAM issue's bench).
 
-Usage: python bench/run_sequences.py [--out runs/bench]
+Usage: python bench/run_sequences.py [--out runs/bench] [--estimator auto|slam|klt-vo]
+
+Speed is reported as measured in the same run: tracking ms/frame (median, p95; for SLAM without
+the inline mapping, which is listed apart) and its ratio to OpenCV's own ORB (same feature count)
+timed on the same frames.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import platform
 import resource
 import sys
+import tempfile
 from pathlib import Path
-
-import numpy as np
 
 from evp.config import Settings
 from evp.io.registry import open_dataset
@@ -22,30 +27,52 @@ SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 SEQUENCES = ["euroc_mh_01_easy_moving_360", "kitti_odom_06_f000-050", "davis_slider_depth", "aerial_nadir_odm_toledo_fc350"]
 
 
+def _circle(folder: Path) -> Path:
+    from evp.sim.generate import generate
+    from evp.sim.scenarios import SimOptions
+
+    generate("circle-indoor", SimOptions(duration_s=20.0, fps=30.0, seed=1), folder, workers=1)
+    return folder
+
+
+def _row(name: str, path: Path, settings: Settings, out: Path) -> str:
+    dataset = open_dataset(path)
+    estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
+    result = run_dataset(dataset, estimator, None, settings.orb.n_features)
+    metrics = write_outputs(result, dataset, settings, out / name)
+    timing = json.loads((out / name / "timing.json").read_text())
+    ate = f"{metrics['rmse']:.4f}" if "rmse" in metrics else "n/a"
+    share = f"{100 * metrics['rmse'] / metrics['reference_path_length_m']:.2f} %" if "rmse" in metrics else "n/a"
+    mapping = f"{timing['mapping_ms_median']:.0f}" if "mapping_ms_median" in timing else "-"
+    kind = type(estimator).__name__
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return (
+        f"| {name} | {kind} | {ate} | {share} | {100 * metrics['tracked_fraction']:.1f} % ({metrics['tracked_frames']}/{metrics['frames']}) | {metrics['init_frame']} "
+        f"| {timing['tracking_ms_median']:.1f} | {timing['tracking_ms_p95']:.1f} | {timing.get('tracking_to_orb_ratio', float('nan')):.2f} | {mapping} | {peak:.0f} |"
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--out", type=Path, default=Path("runs/bench"))
+    parser.add_argument("--estimator", default="auto", choices=["auto", "slam", "klt-vo"])
     args = parser.parse_args()
-    settings = Settings()
-    print(f"command: python bench/run_sequences.py --out {args.out}  ({platform.node()}, {platform.processor() or platform.machine()})\n")
-    print("| sequence | frames | tracked | first tracked frame | ATE Sim3 (m) | ATE / path | ms/frame median | ms/frame p95 |")
-    print("|---|---|---|---|---|---|---|---|")
+    settings = Settings(estimator=args.estimator)
+    print(f"command: python bench/run_sequences.py --out {args.out} --estimator {args.estimator}  ({platform.node()}, {platform.machine()})\n")
+    print(
+        "| sequence | estimator | ATE Sim3 (m) | ATE / path | tracked | frames to initialise | ms/frame median | p95 | ratio to OpenCV ORB | mapping ms/keyframe | peak memory so far (MB) |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name in SEQUENCES:
         path = SHARED / name
         if not path.exists():
-            print(f"| {name} | missing | | | | | | |")
+            print(f"| {name} | missing | | | | | | | | | |")
             continue
-        dataset = open_dataset(path)
-        result = run_dataset(dataset, make_estimator(camera_for(dataset, settings), settings))
-        metrics = write_outputs(result, dataset, settings, args.out / name)
-        ms = np.array(result.tracking_ms)
-        ate = f"{metrics['rmse']:.4f}" if "rmse" in metrics else "n/a"
-        ratio = f"{100 * metrics['rmse'] / metrics['reference_path_length_m']:.2f} %" if "rmse" in metrics else "n/a"
-        print(
-            f"| {name} | {metrics['frames']} | {100 * metrics['tracked_fraction']:.1f} % | {metrics['init_frame']} | {ate} | {ratio} | {np.median(ms):.1f} | {np.percentile(ms, 95):.1f} |"
-        )
+        print(_row(name, path, settings, args.out))
         sys.stdout.flush()
-    print(f"\npeak memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
+    with tempfile.TemporaryDirectory() as tmp:
+        print(_row("sim circle-indoor 640x380 (20 s)", _circle(Path(tmp) / "circle"), settings, args.out))
+        print(_row("sim circle-indoor 640x380, VO mode", Path(tmp) / "circle", Settings(estimator="klt-vo"), args.out))
 
 
 if __name__ == "__main__":

@@ -23,8 +23,8 @@ def test_sample_run_tracks_and_is_accurate(tmp_path):
     dataset = open_dataset(SAMPLE)
     result = run_dataset(dataset, make_estimator(dataset.camera, Settings()))
     metrics = write_outputs(result, dataset, Settings(), tmp_path)
-    # the slider moved ~1 m: a working monocular VO (no bundle adjustment) keeps the Sim3-aligned
-    # error within a few percent of the path; a broken one is off by tens of centimetres
+    # the slider moved ~1 m: working monocular SLAM keeps the Sim3-aligned error within a few
+    # percent of the path; a broken one is off by tens of centimetres
     assert metrics["tracked_fraction"] >= 0.8
     assert metrics["rmse"] < 0.05 * metrics["reference_path_length_m"]
     assert metrics["init_frame"] <= 10
@@ -66,7 +66,9 @@ def test_run_command_on_sample(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "ATE (Sim3-aligned RMSE)" in proc.stdout
     metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["matched_poses"] == metrics["tracked_frames"]
+    # every tracked pose has ground truth, except the SLAM initialisation reference when that is
+    # frame 0: the sample's ground truth starts 22 ms after it (more than half a frame period)
+    assert metrics["matched_poses"] >= metrics["tracked_frames"] - 1
 
 
 def test_run_without_calibration_is_a_clear_error(tmp_path):

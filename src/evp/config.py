@@ -66,7 +66,10 @@ class VoSettings(_Section):
 class SlamSettings(_Section):
     """The ORB-SLAM-style engine (``evp.slam``); names follow ORB-SLAM where it has one."""
 
-    mapping: Literal["thread", "inline"] = Field("thread", description="local mapping in its own worker thread, or inline after each keyframe (deterministic)")
+    mapping: Literal["thread", "inline"] = Field(
+        "inline",
+        description="inline: each keyframe mapped before the next frame (deterministic; offline runs and replays); thread: a worker fed by a keyframe queue (live)",
+    )
     init_min_matches: int = Field(100, ge=20, description="matches to the initial reference needed to try initialising")
     init_search_radius_px: float = Field(100.0, gt=0, description="window for initial matching")
     init_min_parallax_deg: float = Field(1.0, gt=0)

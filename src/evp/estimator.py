@@ -11,4 +11,3 @@ class Estimator(Protocol):
     def feed(self, frame: Frame) -> PoseEstimate:
         """Estimate the camera pose for one frame (frames must arrive in time order)."""
         ...
-

@@ -119,7 +119,32 @@ def _best_motion(
         return None
     # keep only points with real parallax: the rest are directions, not positions
     good &= check_points(points, T1, T2, x1, x2, focal, 4.0, 4.0)[0]
+    T2, points[good] = _refine(T2, points[good], x1[good], x2[good], focal)
     return TwoViewResult(T2, points, good, model, parallax)
+
+
+def _refine(T2: np.ndarray, points: np.ndarray, x1: np.ndarray, x2: np.ndarray, focal: float) -> tuple[np.ndarray, np.ndarray]:
+    """Two-view bundle adjustment of the second pose and the points (the first view fixed), back
+    to a unit baseline: the RANSAC model is fitted on a minimal-ish sample, this uses every inlier."""
+    from evp.slam.bundle_adjustment import BundleProblem, bundle_adjust
+
+    n = len(points)
+    K = np.diag([focal, focal, 1.0])
+    problem = BundleProblem(
+        np.array([np.eye(4), T2]),
+        points,
+        np.repeat([0, 1], n),
+        np.tile(np.arange(n), 2),
+        np.vstack([x1, x2]) * focal,
+        np.ones(2 * n),
+        np.array([True, False]),
+        K,
+    )
+    poses, refined, _ = bundle_adjust(problem, evaluations=10, outlier_rounds=1)
+    scale = 1.0 / max(np.linalg.norm(poses[1][:3, 3]), 1e-12)
+    T = poses[1].copy()
+    T[:3, 3] *= scale
+    return T, refined * scale
 
 
 def initial_two_view(

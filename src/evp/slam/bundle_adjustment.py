@@ -143,7 +143,18 @@ def observation_chi2(problem: BundleProblem, poses: np.ndarray, points: np.ndarr
 def _solve(problem: BundleProblem, active: np.ndarray, evaluations: int) -> BundleProblem:
     model = _Model(problem, active)
     x0 = np.concatenate([np.zeros(model.n_pose_params), problem.points.ravel()])
-    result = least_squares(model.residuals, x0, jac=model.jacobian, method="trf", x_scale="jac", tr_solver="lsmr", tr_options={"maxiter": 100}, max_nfev=evaluations, ftol=1e-6, xtol=1e-10)
+    result = least_squares(
+        model.residuals,
+        x0,
+        jac=model.jacobian,
+        method="trf",
+        x_scale="jac",
+        tr_solver="lsmr",
+        tr_options={"maxiter": 100},
+        max_nfev=evaluations,
+        ftol=1e-6,
+        xtol=1e-10,
+    )
     R, t, points = model.unpack(result.x)
     poses = np.repeat(np.eye(4)[None], len(R), axis=0)
     poses[:, :3, :3], poses[:, :3, 3] = R, t

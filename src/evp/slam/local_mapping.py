@@ -204,7 +204,7 @@ class LocalMapper:
 
         for i, k in enumerate(kf_ids):
             if not problem.fixed[i] and k in self.map.keyframes:
-                self.map.keyframes[k].T_cw = poses[i]
+                self.map.keyframes[k].set_pose(poses[i])
         for j, p in enumerate(point_ids):
             if p in self.map.points:
                 self.map.points[p].position = points[j]
@@ -214,7 +214,7 @@ class LocalMapper:
                 self.map.remove_observation(point, kf_ids[problem.pose_index[n]])
         for p in point_ids:
             if p in self.map.points:
-                self.map.update_point_geometry(self.map.points[p], self.extractor.scale_factors)
+                self.map.update_point_geometry(self.map.points[p], self.extractor.scale_factors, descriptor=False)
 
     def _cull_keyframes(self, kf: KeyFrame) -> None:
         """Drop neighbours whose points are nearly all seen by 3 other keyframes at the same or a
@@ -231,7 +231,9 @@ class LocalMapper:
                     continue
                 total += 1
                 level = nb.features.octave[index]
-                seen = sum(1 for k, i in point.observations.items() if k != nb.id and k in self.map.keyframes and self.map.keyframes[k].features.octave[i] <= level + 1)
+                seen = sum(
+                    1 for k, i in point.observations.items() if k != nb.id and k in self.map.keyframes and self.map.keyframes[k].features.octave[i] <= level + 1
+                )
                 redundant += seen >= 3
             if total and redundant > self.settings.keyframe_redundancy * total:
                 self.map.remove_keyframe(nb.id)
@@ -261,6 +263,11 @@ class MappingWorker:
     @property
     def idle(self) -> bool:
         return self.queue.empty() and not self._busy.is_set()
+
+    @property
+    def pending(self) -> int:
+        """Keyframes waiting in the queue (not counting the one being processed)."""
+        return self.queue.qsize()
 
     def submit(self, item: NewKeyFrame) -> None:
         self._busy.set()
@@ -297,6 +304,7 @@ class InlineMapping:
         self.mapping_ms: list[float] = []
         self.max_queue = 0
         self.idle = True
+        self.pending = 0
 
     def submit(self, item: NewKeyFrame) -> None:
         start = time.perf_counter()

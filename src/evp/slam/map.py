@@ -27,10 +27,14 @@ class KeyFrame:
     point_ids: np.ndarray  # (N,) map point id per feature, -1 where none
     thumbnail: np.ndarray  # global appearance descriptor (see relocalisation)
     covisible: Counter = field(default_factory=Counter)  # keyframe id -> shared points
+    centre: np.ndarray = field(init=False)  # camera centre in the world, kept in step with T_cw
 
-    @property
-    def centre(self) -> np.ndarray:
-        return -self.T_cw[:3, :3].T @ self.T_cw[:3, 3]
+    def __post_init__(self) -> None:
+        self.set_pose(self.T_cw)
+
+    def set_pose(self, T_cw: np.ndarray) -> None:
+        self.T_cw = T_cw
+        self.centre = -T_cw[:3, :3].T @ T_cw[:3, 3]
 
     def best_covisible(self, count: int, min_weight: int = 1) -> list[int]:
         return [k for k, w in self.covisible.most_common(count) if w >= min_weight]
@@ -140,21 +144,23 @@ class Map:
 
     # --- derived state ------------------------------------------------------------------
 
-    def update_point_geometry(self, point: MapPoint, scale_factors: np.ndarray) -> None:
-        """Mean viewing direction, scale-invariance distance range, representative descriptor."""
+    def update_point_geometry(self, point: MapPoint, scale_factors: np.ndarray, descriptor: bool = True) -> None:
+        """Mean viewing direction and scale-invariance distance range; with ``descriptor``, also
+        the representative descriptor (the one closest to all others, by median distance)."""
         kfs = [(self.keyframes[k], i) for k, i in point.observations.items() if k in self.keyframes]
         if not kfs:
             return
-        rays = np.array([point.position - kf.centre for kf, _ in kfs])
-        norms = np.linalg.norm(rays, axis=1, keepdims=True)
-        normal = (rays / np.maximum(norms, 1e-12)).mean(axis=0)
-        point.normal = normal / max(np.linalg.norm(normal), 1e-12)
+        rays = point.position - np.array([kf.centre for kf, _ in kfs])
+        rays /= np.maximum(np.sqrt(np.einsum("ij,ij->i", rays, rays)), 1e-12)[:, None]
+        normal = rays.sum(axis=0)
+        point.normal = normal / max(float(np.sqrt(normal @ normal)), 1e-12)
         first = point.first_kf
         ref_kf, ref_index = (self.keyframes[first], point.observations[first]) if first in point.observations and first in self.keyframes else kfs[0]
-        distance = float(np.linalg.norm(point.position - ref_kf.centre))
-        level = ref_kf.features.octave[ref_index]
-        point.max_distance = distance * scale_factors[level]
+        offset = point.position - ref_kf.centre
+        point.max_distance = float(np.sqrt(offset @ offset)) * scale_factors[ref_kf.features.octave[ref_index]]
         point.min_distance = point.max_distance / scale_factors[-1]
+        if not descriptor:
+            return
         descriptors = np.array([kf.features.descriptors[i] for kf, i in kfs])
         if len(descriptors) > 2:
             bits = np.unpackbits(descriptors, axis=1).astype(np.int16)
@@ -244,10 +250,19 @@ class Map:
         for row, kf_id in enumerate(data["kf_ids"]):
             a, b = offsets[row], offsets[row + 1]
             features = Features(*(data[f"feat_{n}"][a:b] for n in ("px", "un_px", "normalised", "octave", "angle", "descriptors")))
-            kf = KeyFrame(int(kf_id), float(data["kf_timestamps"][row]), data["kf_T_cw"][row], features, data["feat_point_ids"][a:b].astype(int), data["kf_thumbnails"][row])
+            kf = KeyFrame(
+                int(kf_id),
+                float(data["kf_timestamps"][row]),
+                data["kf_T_cw"][row],
+                features,
+                data["feat_point_ids"][a:b].astype(int),
+                data["kf_thumbnails"][row],
+            )
             result.keyframes[kf.id] = kf
         for row, point_id in enumerate(data["point_ids"]):
-            result.points[int(point_id)] = MapPoint(int(point_id), data["point_positions"][row], data["point_descriptors"][row], int(data["point_first_kf"][row]))
+            result.points[int(point_id)] = MapPoint(
+                int(point_id), data["point_positions"][row], data["point_descriptors"][row], int(data["point_first_kf"][row])
+            )
         for kf in result.keyframes.values():
             for index in np.flatnonzero(kf.point_ids >= 0):
                 point = result.points.get(int(kf.point_ids[index]))

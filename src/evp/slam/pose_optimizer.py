@@ -30,7 +30,9 @@ def apply_increment(T_cw: np.ndarray, xi: np.ndarray) -> np.ndarray:
     return out
 
 
-def reprojection_chi2(T_cw: np.ndarray, points: np.ndarray, observed: np.ndarray, fx: float, fy: float, cx: float, cy: float, inv_sigma2: np.ndarray) -> np.ndarray:
+def reprojection_chi2(
+    T_cw: np.ndarray, points: np.ndarray, observed: np.ndarray, fx: float, fy: float, cx: float, cy: float, inv_sigma2: np.ndarray
+) -> np.ndarray:
     pc = points @ T_cw[:3, :3].T + T_cw[:3, 3]
     z = pc[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):

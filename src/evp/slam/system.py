@@ -64,6 +64,7 @@ class SlamSystem:
         self.mapping = MappingWorker(mapper) if self.settings.mapping == "thread" else InlineMapping(mapper)
         self.state = TrackingState.NOT_INITIALIZED
         self.extraction_ms: list[float] = []
+        self.tracking_ms: list[float] = []  # per frame, without inline mapping
         self.records: list[_FrameRecord] = []
         self.reset_counter = 0  # bumped on relocalisation (a discontinuity for consumers)
         self._init_reference: _TrackedFrame | None = None
@@ -84,6 +85,7 @@ class SlamSystem:
         self._frame_count += 1
         cv2.setRNGSeed(self._frame_count)
         start = time.perf_counter()
+        mapping_before = sum(self.mapping.mapping_ms) if self.settings.mapping == "inline" else 0.0
         features = self.extractor.extract(grey)
         self.extraction_ms.append((time.perf_counter() - start) * 1000.0)
         if self.state == TrackingState.NOT_INITIALIZED:
@@ -92,6 +94,8 @@ class SlamSystem:
             T_cw = self._relocalise(grey, features)
         else:
             T_cw = self._track(grey, features)
+        inline_mapping = sum(self.mapping.mapping_ms) - mapping_before if self.settings.mapping == "inline" else 0.0
+        self.tracking_ms.append((time.perf_counter() - start) * 1000.0 - inline_mapping)
         return self._answer(frame, T_cw)
 
     def finish(self) -> None:
@@ -147,7 +151,9 @@ class SlamSystem:
         if len(rows) < s.init_min_matches:
             self._init_reference = self._untracked(features, grey)
             return None
-        result = initial_two_view(ref.normalised[rows], features.normalised[cols], self.camera.fx, s.init_min_parallax_deg, s.init_min_triangulated, s.homography_ratio)
+        result = initial_two_view(
+            ref.normalised[rows], features.normalised[cols], self.camera.fx, s.init_min_parallax_deg, s.init_min_triangulated, s.homography_ratio
+        )
         if result is None or result.good.sum() < s.init_min_triangulated:
             return None
         with self.map.lock:
@@ -199,7 +205,7 @@ class SlamSystem:
         )
         poses, points, chi2 = bundle_adjust(problem, evaluations=20)
         for kf, T in zip(keyframes, poses, strict=True):
-            kf.T_cw = T
+            kf.set_pose(T)
         for j, p in enumerate(point_ids):
             self.map.points[p].position = points[j]
         from evp.geometry.two_view import CHI2_2DOF
@@ -211,7 +217,9 @@ class SlamSystem:
 
     def _rescale(self, factor: float) -> None:
         for kf in self.map.keyframes.values():
-            kf.T_cw[:3, 3] *= factor
+            T = kf.T_cw.copy()
+            T[:3, 3] *= factor
+            kf.set_pose(T)
         for point in self.map.points.values():
             point.position *= factor
 
@@ -280,7 +288,17 @@ class SlamSystem:
             uv = np.c_[self.K[0, 0] * pc[:, 0] / pc[:, 2] + self.K[0, 2], self.K[1, 1] * pc[:, 1] / pc[:, 2] + self.K[1, 2]]
         for widen in (1.0, 2.0):
             radius = widen * self.settings.motion_search_radius_px * self.extractor.scale_factors[last.features.octave[rows_last]]
-            a, b = match_in_window(descriptors[front], uv[front], features.descriptors, features.un_px, radius[front], TH_HIGH, 0.9, last.features.octave[rows_last][front], features.octave)
+            a, b = match_in_window(
+                descriptors[front],
+                uv[front],
+                features.descriptors,
+                features.un_px,
+                radius[front],
+                TH_HIGH,
+                0.9,
+                last.features.octave[rows_last][front],
+                features.octave,
+            )
             keep = rotation_consistent(last.features.angle[rows_last][front][a], features.angle[b])
             a, b = a[keep], b[keep]
             if len(a) >= 20:
@@ -345,8 +363,15 @@ class SlamSystem:
                 self.map.points[point_id].visible += 1
             free = np.flatnonzero(matched < 0)
             descriptors = np.array([self.map.points[i].descriptor for i in candidates])
-            radius = np.where(projection.view_cos > 0.998, 2.5, 4.0) * self.settings.local_map_search_radius_px / 4.0 * self.extractor.scale_factors[projection.level]
-            a, b = match_in_window(descriptors, projection.uv, features.descriptors[free], features.un_px[free], radius, TH_HIGH, 0.8, projection.level, features.octave[free])
+            radius = (
+                np.where(projection.view_cos > 0.998, 2.5, 4.0)
+                * self.settings.local_map_search_radius_px
+                / 4.0
+                * self.extractor.scale_factors[projection.level]
+            )
+            a, b = match_in_window(
+                descriptors, projection.uv, features.descriptors[free], features.un_px[free], radius, TH_HIGH, 0.8, projection.level, features.octave[free]
+            )
             matched[free[b]] = np.array(candidates, dtype=int)[a]
         T_cw, inliers = self._optimise(features, matched, T_cw)
         for point_id in matched[matched >= 0]:
@@ -371,9 +396,11 @@ class SlamSystem:
                 point = self.map.points.get(int(point_id))
                 ref_matches += point is not None and len(point.observations) >= min_obs
         idle = self.mapping.idle
-        c1 = since_kf >= s.keyframe_max_frames or idle
+        weak = inliers < 0.5 * ref_matches  # the map is slipping away (fast forward motion)
+        c1 = since_kf >= s.keyframe_max_frames or idle or weak
         c2 = inliers < s.keyframe_ref_ratio * ref_matches and inliers > 15
-        return bool(c1 and c2 and idle)
+        # a busy mapper still takes a keyframe when tracking is weak, one at a time
+        return bool(c1 and c2 and (idle or (weak and self.mapping.pending == 0)))
 
     def _insert_keyframe(self, features: Features, T_cw: np.ndarray, matched: np.ndarray, grey: np.ndarray) -> None:
         kf = self.map.add_keyframe(self._pending_timestamp, T_cw, features, thumbnail(grey))
@@ -410,7 +437,9 @@ class SlamSystem:
             return None
         ids = kf.point_ids[rows][a]
         positions, _ = self._map_point_arrays(ids)
-        ok, rvec, tvec, inliers = cv2.solvePnPRansac(positions, features.un_px[b], self.K, None, iterationsCount=300, reprojectionError=4.0, confidence=0.99, flags=cv2.SOLVEPNP_EPNP)
+        ok, rvec, tvec, inliers = cv2.solvePnPRansac(
+            positions, features.un_px[b], self.K, None, iterationsCount=300, reprojectionError=4.0, confidence=0.99, flags=cv2.SOLVEPNP_EPNP
+        )
         if not ok or inliers is None or len(inliers) < 10:
             return None
         T_cw = np.eye(4)

@@ -1,4 +1,9 @@
-"""The SLAM engine on a real sequence with ground truth (skipped when ../shared/data is absent)."""
+"""The SLAM engine on real sequences with ground truth (skipped when ../shared/data is absent).
+
+Issue targets, with a 5 % margin; ORB-SLAM3 on this machine: MH01 0.0049-0.0050 m (359/360),
+KITTI 06 0.056-0.089 m (50/51)."""
+
+import pytest
 
 from evp.config import Settings
 from evp.io.registry import open_dataset
@@ -7,23 +12,13 @@ from evp.run_setup import camera_for, make_estimator
 from tests.conftest import shared
 
 
-def test_euroc_mh01_meets_the_accuracy_target(tmp_path):
-    """Issue target: ATE <= 0.0075 m with >= 98 % tracked (ORB-SLAM3 here: 0.0049-0.0050 m)."""
-    dataset = open_dataset(shared("euroc_mh_01_easy_moving_360"))
+@pytest.mark.parametrize(("sequence", "max_ate_m", "min_tracked"), [("euroc_mh_01_easy_moving_360", 0.0075, 0.98), ("kitti_odom_06_f000-050", 0.10, 0.95)])
+def test_sequence_meets_the_accuracy_target(tmp_path, sequence, max_ate_m, min_tracked):
+    dataset = open_dataset(shared(sequence))
     settings = Settings(estimator="slam")
     result = run_dataset(dataset, make_estimator(camera_for(dataset, settings), settings, dataset))
     metrics = write_outputs(result, dataset, settings, tmp_path)
-    assert metrics["tracked_fraction"] >= 0.98
-    assert metrics["rmse"] <= 0.0075 * 1.05
-    for name in ("trajectory.tum", "keyframes.tum", "map.ply", "map.npz", "timing.json", "metrics.json", "settings.yaml"):
+    assert metrics["tracked_fraction"] >= min_tracked
+    assert metrics["rmse"] <= max_ate_m * 1.05
+    for name in ("trajectory.tum", "trajectory_live.tum", "keyframes.tum", "map.ply", "map.npz", "timing.json", "metrics.json", "settings.yaml"):
         assert (tmp_path / name).is_file()
-
-
-def test_kitti_06_meets_the_accuracy_target(tmp_path):
-    """Issue target: ATE <= 0.10 m with >= 95 % tracked (ORB-SLAM3 here: 0.056-0.089 m, 50/51)."""
-    dataset = open_dataset(shared("kitti_odom_06_f000-050"))
-    settings = Settings(estimator="slam")
-    result = run_dataset(dataset, make_estimator(camera_for(dataset, settings), settings, dataset))
-    metrics = write_outputs(result, dataset, settings, tmp_path)
-    assert metrics["tracked_fraction"] >= 0.95
-    assert metrics["rmse"] <= 0.10 * 1.05

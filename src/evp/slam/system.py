@@ -19,7 +19,6 @@ import cv2
 import numpy as np
 
 from evp.config import OrbSettings, SlamSettings
-from evp.errors import EvpError
 from evp.geometry.transforms import se3_inverse
 from evp.geometry.two_view import initial_two_view
 from evp.slam.bundle_adjustment import BundleProblem, bundle_adjust
@@ -29,6 +28,7 @@ from evp.slam.pose_optimizer import optimise_pose
 from evp.slam.projection import project_points, undistorted_bounds
 from evp.slam.relocalisation import rank_keyframes, thumbnail
 from evp.types import CameraModel, Frame, PoseEstimate, TrackingState
+from evp.vision.images import grey_image
 from evp.vision.matching import TH_HIGH, TH_LOW, match_descriptors, match_in_window, rotation_consistent
 from evp.vision.orb import Features, OrbExtractor
 
@@ -80,7 +80,7 @@ class SlamSystem:
     # --- public ---------------------------------------------------------------------------
 
     def feed(self, frame: Frame) -> PoseEstimate:
-        grey = self._grey(frame)
+        grey = grey_image(frame, self.camera)
         self._pending_timestamp = frame.timestamp
         self._frame_count += 1
         cv2.setRNGSeed(self._frame_count)
@@ -123,17 +123,6 @@ class SlamSystem:
                 stamps.append(record.timestamp)
                 poses.append(se3_inverse(record.T_frame_ref @ T_ref))
         return np.array(stamps), np.array(poses).reshape(-1, 4, 4)
-
-    # --- validation -------------------------------------------------------------------------
-
-    def _grey(self, frame: Frame) -> np.ndarray:
-        image = frame.image
-        if image is None or image.size == 0:
-            raise EvpError(f"frame {frame.index} at t={frame.timestamp}: empty image")
-        if image.shape[0] != self.camera.height or image.shape[1] != self.camera.width:
-            raise EvpError(f"frame {frame.index}: image is {image.shape[1]}x{image.shape[0]}, calibration is {self.camera.width}x{self.camera.height}")
-        grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-        return grey if grey.dtype == np.uint8 else cv2.normalize(grey, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
 
     # --- initialisation ---------------------------------------------------------------------
 

@@ -14,9 +14,9 @@ import cv2
 import numpy as np
 
 from evp.config import VoSettings
-from evp.errors import EvpError
 from evp.geometry.transforms import se3, se3_inverse
 from evp.types import CameraModel, Frame, PoseEstimate, TrackingState
+from evp.vision.images import grey_image
 
 LK_PARAMS = dict(winSize=(21, 21), maxLevel=3, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
 
@@ -48,7 +48,7 @@ class KltVisualOdometry:
     # --- public ---------------------------------------------------------------------------
 
     def feed(self, frame: Frame) -> PoseEstimate:
-        grey = self._grey(frame)
+        grey = grey_image(frame, self.camera)
         self._frame_count += 1
         cv2.setRNGSeed(self._frame_count)  # RANSAC draws depend only on the frame: replays are identical
         if self._keyframe is None:
@@ -60,14 +60,6 @@ class KltVisualOdometry:
         return self._track_pose(frame, grey, tracked)
 
     # --- steps ------------------------------------------------------------------------------
-
-    def _grey(self, frame: Frame) -> np.ndarray:
-        image = frame.image
-        if image is None or image.size == 0:
-            raise EvpError(f"frame {frame.index} at t={frame.timestamp}: empty image")
-        if image.shape[0] != self.camera.height or image.shape[1] != self.camera.width:
-            raise EvpError(f"frame {frame.index}: image is {image.shape[1]}x{image.shape[0]}, calibration is {self.camera.width}x{self.camera.height}")
-        return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
 
     def _detect(self, grey: np.ndarray, existing: np.ndarray, count: int) -> np.ndarray:
         if count <= 0:

@@ -121,7 +121,8 @@ def _timing(result: RunResult) -> dict:
 
     # SLAM with inline mapping: tracking time without the mapping done in the same call
     tracking = result.slam.tracking_ms if result.slam is not None else result.tracking_ms
-    timing: dict = {"tracking_ms": tracking, "tracking_ms_median": stats(tracking)["median"], "tracking_ms_p95": stats(tracking)["p95"]}
+    tracking_stats = stats(tracking)
+    timing: dict = {"tracking_ms": tracking, "tracking_ms_median": tracking_stats["median"], "tracking_ms_p95": tracking_stats["p95"]}
     if result.reference_orb_ms:
         timing["opencv_orb_ms"] = result.reference_orb_ms
         timing["opencv_orb_ms_median"] = stats(result.reference_orb_ms)["median"]

@@ -26,6 +26,15 @@ def nearest_rotation(R: np.ndarray) -> np.ndarray:
     return U @ D @ Vt
 
 
+def skew(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrices ``[v]x`` of a 3-vector (3, 3) or a stack of them (..., 3, 3)."""
+    v = np.asarray(v, dtype=float)
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return out
+
+
 def se3_inverse(T: np.ndarray) -> np.ndarray:
     """Inverse of a rigid transform (or a stack of them, shape (..., 4, 4))."""
     R = T[..., :3, :3]

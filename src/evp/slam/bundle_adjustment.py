@@ -20,7 +20,9 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import csr_matrix
 
+from evp.geometry.transforms import skew
 from evp.geometry.two_view import CHI2_2DOF
+from evp.slam.projection import reprojection_chi2
 
 
 @dataclass
@@ -47,14 +49,7 @@ def _left_jacobian(phi: np.ndarray) -> np.ndarray:
         t = theta[big]
         a = phi[big] / t[:, None]
         s, c = np.sin(t) / t, (1 - np.cos(t)) / t
-        out[big] = s[:, None, None] * np.eye(3) + (1 - s)[:, None, None] * np.einsum("ni,nj->nij", a, a) + c[:, None, None] * _skew(a)
-    return out
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    out = np.zeros((len(v), 3, 3))
-    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
-    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
+        out[big] = s[:, None, None] * np.eye(3) + (1 - s)[:, None, None] * np.einsum("ni,nj->nij", a, a) + c[:, None, None] * skew(a)
     return out
 
 
@@ -118,7 +113,7 @@ class _Model:
         if use.any():
             # pc = exp(phi) (R0 X + t0) + dt: d pc/d phi = -[pc - dt]x J_l(phi), d pc/d dt = I
             delta = x[: self.n_pose_params].reshape(-1, 6)[slot[use]]
-            d_rot = d_proj[use] @ (-_skew(pc[use] - delta[:, 3:]) @ _left_jacobian(delta[:, :3]))
+            d_rot = d_proj[use] @ (-skew(pc[use] - delta[:, 3:]) @ _left_jacobian(delta[:, :3]))
             d_pose = np.concatenate([d_rot, d_proj[use]], axis=2)
             col0 = 6 * slot[use]
             all_rows.append(np.repeat(rows[use][:, :, None], 6, axis=2).ravel())
@@ -129,15 +124,9 @@ class _Model:
 
 
 def observation_chi2(problem: BundleProblem, poses: np.ndarray, points: np.ndarray) -> np.ndarray:
-    K = problem.K
     R = poses[problem.pose_index, :3, :3]
     pc = np.einsum("nij,nj->ni", R, points[problem.point_index]) + poses[problem.pose_index, :3, 3]
-    z = pc[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = K[0, 0] * pc[:, 0] / z + K[0, 2]
-        v = K[1, 1] * pc[:, 1] / z + K[1, 2]
-    chi2 = ((u - problem.observed[:, 0]) ** 2 + (v - problem.observed[:, 1]) ** 2) / problem.sigma**2
-    return np.where(z > 0, chi2, np.inf)
+    return reprojection_chi2(pc, problem.observed, problem.K, 1.0 / problem.sigma**2)
 
 
 def _solve(problem: BundleProblem, active: np.ndarray, evaluations: int) -> BundleProblem:

@@ -17,9 +17,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from evp.config import SlamSettings
+from evp.geometry.transforms import se3_inverse, skew
 from evp.geometry.two_view import CHI2_1DOF, check_points, triangulate
-from evp.slam.bundle_adjustment import BundleProblem, bundle_adjust
+from evp.slam.bundle_adjustment import bundle_adjust
 from evp.slam.map import KeyFrame, Map
+from evp.slam.map_adjustment import apply_solution, window_problem
 from evp.slam.projection import project_points
 from evp.vision.matching import TH_LOW, best_unique, hamming_matrix, match_in_window, rotation_consistent
 from evp.vision.orb import OrbExtractor
@@ -52,9 +54,9 @@ class LocalMapper:
             self.map.update_covisibility(kf)
             problem, kf_ids, point_ids = self._local_window(kf)
         if problem is not None:
-            poses, points, chi2 = bundle_adjust(problem, self.settings.ba_evaluations)
+            solution = bundle_adjust(problem, self.settings.ba_evaluations)
             with self.map.lock:
-                self._write_back(problem, kf_ids, point_ids, poses, points, chi2)
+                apply_solution(self.map, problem, kf_ids, point_ids, solution, self.extractor.scale_factors)
                 self._cull_keyframes(kf)
 
     # --- steps ----------------------------------------------------------------------------
@@ -99,8 +101,8 @@ class LocalMapper:
             fa, fb = kf.features, nb.features
             distances = hamming_matrix(fa.descriptors[free_a], fb.descriptors[free_b])
             # epipolar constraint: b's keypoint near the line of a's keypoint
-            F = _fundamental(kf.T_cw, nb.T_cw)
-            lines = np.c_[fa.normalised[free_a], np.ones(len(free_a))] @ F.T  # lines in b (normalised)
+            E = _essential(kf.T_cw, nb.T_cw)
+            lines = np.c_[fa.normalised[free_a], np.ones(len(free_a))] @ E.T  # lines in b (normalised)
             xb = np.c_[fb.normalised[free_b], np.ones(len(free_b))]
             d2 = (lines @ xb.T) ** 2 / (lines[:, 0:1] ** 2 + lines[:, 1:2] ** 2) * fx * fx
             distances[d2 > CHI2_1DOF * sigma2[fb.octave[free_b]][None, :]] = 256
@@ -161,6 +163,8 @@ class LocalMapper:
                     self.map.add_observation(point, nb, int(index))
 
     def _local_window(self, kf: KeyFrame):
+        """The keyframe and its best covisible neighbours, free; other keyframes seeing their
+        points, fixed (plus the first keyframe, and at least two poses in all)."""
         local_ids = [kf.id] + [k for k in kf.best_covisible(self.settings.local_ba_keyframes - 1) if k in self.map.keyframes]
         local = set(local_ids)
         point_ids = sorted({int(p) for k in local_ids for p in self.map.keyframes[k].point_ids if p >= 0 and int(p) in self.map.points})
@@ -168,53 +172,15 @@ class LocalMapper:
             return None, None, None
         fixed_ids = sorted({o for p in point_ids for o in self.map.points[p].observations if o not in local and o in self.map.keyframes})
         kf_ids = local_ids + fixed_ids
-        slot = {k: i for i, k in enumerate(kf_ids)}
-        point_slot = {p: j for j, p in enumerate(point_ids)}
-        pose_index, point_index, observed, sigma = [], [], [], []
-        for p in point_ids:
-            for k, index in self.map.points[p].observations.items():
-                if k in slot:
-                    f = self.map.keyframes[k].features
-                    pose_index.append(slot[k])
-                    point_index.append(point_slot[p])
-                    observed.append(f.un_px[index])
-                    sigma.append(self.extractor.scale_factors[f.octave[index]])
         fixed = np.array([k not in local for k in kf_ids])
-        if 0 in slot:
-            fixed[slot[0]] = True  # the first keyframe anchors the map
+        if 0 in local:
+            fixed[kf_ids.index(0)] = True  # the first keyframe anchors the map
         # a monocular window needs two fixed poses: one leaves the scale free to drift
         for k in sorted(local_ids):
             if fixed.sum() >= 2 or k == kf.id:
                 break
-            fixed[slot[k]] = True
-        problem = BundleProblem(
-            np.array([self.map.keyframes[k].T_cw for k in kf_ids]),
-            np.array([self.map.points[p].position for p in point_ids]),
-            np.array(pose_index),
-            np.array(point_index),
-            np.array(observed).reshape(-1, 2),
-            np.array(sigma),
-            fixed,
-            self.K,
-        )
-        return problem, kf_ids, point_ids
-
-    def _write_back(self, problem: BundleProblem, kf_ids, point_ids, poses, points, chi2) -> None:
-        from evp.geometry.two_view import CHI2_2DOF
-
-        for i, k in enumerate(kf_ids):
-            if not problem.fixed[i] and k in self.map.keyframes:
-                self.map.keyframes[k].set_pose(poses[i])
-        for j, p in enumerate(point_ids):
-            if p in self.map.points:
-                self.map.points[p].position = points[j]
-        for n in np.flatnonzero(~(chi2 < CHI2_2DOF)):
-            point = self.map.points.get(point_ids[problem.point_index[n]])
-            if point is not None:
-                self.map.remove_observation(point, kf_ids[problem.pose_index[n]])
-        for p in point_ids:
-            if p in self.map.points:
-                self.map.update_point_geometry(self.map.points[p], self.extractor.scale_factors, descriptor=False)
+            fixed[kf_ids.index(k)] = True
+        return window_problem(self.map, kf_ids, point_ids, fixed, self.extractor.scale_factors, self.K), kf_ids, point_ids
 
     def _cull_keyframes(self, kf: KeyFrame) -> None:
         """Drop neighbours whose points are nearly all seen by 3 other keyframes at the same or a
@@ -239,12 +205,10 @@ class LocalMapper:
                 self.map.remove_keyframe(nb.id)
 
 
-def _fundamental(T1_cw: np.ndarray, T2_cw: np.ndarray) -> np.ndarray:
+def _essential(T1_cw: np.ndarray, T2_cw: np.ndarray) -> np.ndarray:
     """Essential matrix mapping normalised points of view 1 to epipolar lines in view 2."""
-    T21 = T2_cw @ np.linalg.inv(T1_cw)
-    t = T21[:3, 3]
-    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
-    return tx @ T21[:3, :3]
+    T21 = T2_cw @ se3_inverse(T1_cw)
+    return skew(T21[:3, 3]) @ T21[:3, :3]
 
 
 class MappingWorker:

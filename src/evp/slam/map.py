@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from evp.geometry.transforms import se3_inverse
+from evp.vision.matching import hamming_matrix
 from evp.vision.orb import Features
 
 
@@ -163,8 +164,7 @@ class Map:
             return
         descriptors = np.array([kf.features.descriptors[i] for kf, i in kfs])
         if len(descriptors) > 2:
-            bits = np.unpackbits(descriptors, axis=1).astype(np.int16)
-            distances = np.abs(bits[:, None, :] - bits[None, :, :]).sum(axis=2)
+            distances = hamming_matrix(descriptors, descriptors)
             point.descriptor = descriptors[int(np.argmin(np.median(distances, axis=1)))].copy()
         else:
             point.descriptor = descriptors[0].copy()

@@ -13,12 +13,9 @@ import numpy as np
 
 from evp.geometry.transforms import nearest_rotation
 from evp.geometry.two_view import CHI2_2DOF
+from evp.slam.projection import reprojection_chi2
 
 HUBER_DELTA = np.sqrt(CHI2_2DOF)
-
-
-def skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
 
 
 def apply_increment(T_cw: np.ndarray, xi: np.ndarray) -> np.ndarray:
@@ -28,18 +25,6 @@ def apply_increment(T_cw: np.ndarray, xi: np.ndarray) -> np.ndarray:
     out[:3, :3] = nearest_rotation(R @ T_cw[:3, :3])
     out[:3, 3] = R @ T_cw[:3, 3] + xi[3:]
     return out
-
-
-def reprojection_chi2(
-    T_cw: np.ndarray, points: np.ndarray, observed: np.ndarray, fx: float, fy: float, cx: float, cy: float, inv_sigma2: np.ndarray
-) -> np.ndarray:
-    pc = points @ T_cw[:3, :3].T + T_cw[:3, 3]
-    z = pc[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = fx * pc[:, 0] / z + cx
-        v = fy * pc[:, 1] / z + cy
-    chi2 = ((u - observed[:, 0]) ** 2 + (v - observed[:, 1]) ** 2) * inv_sigma2
-    return np.where(z > 0, chi2, np.inf)
 
 
 def optimise_pose(
@@ -92,6 +77,5 @@ def optimise_pose(
             T = apply_increment(T, xi)
             if np.linalg.norm(xi) < 1e-10:
                 break
-        chi2_all = reprojection_chi2(T, points, observed, fx, fy, cx, cy, inv_sigma2)
-        inlier = chi2_all < CHI2_2DOF
+        inlier = reprojection_chi2(points @ T[:3, :3].T + T[:3, 3], observed, K, inv_sigma2) < CHI2_2DOF
     return T, inlier

@@ -21,6 +21,21 @@ class Projection:
     view_cos: np.ndarray  # (n,) cosine between the viewing ray and the point's mean direction
 
 
+def pinhole_pixels(points_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Undistorted pixel coordinates (N, 2) of camera-frame points; NaN behind the camera."""
+    z = points_cam[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = points_cam[:, :2] / z[:, None] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
+    uv[~(z > 0)] = np.nan
+    return uv
+
+
+def reprojection_chi2(points_cam: np.ndarray, observed: np.ndarray, K: np.ndarray, inv_sigma2: np.ndarray) -> np.ndarray:
+    """Squared reprojection errors weighted by the observation's octave; infinite behind the camera."""
+    chi2 = np.sum((pinhole_pixels(points_cam, K) - observed) ** 2, axis=1) * inv_sigma2
+    return np.where(np.isfinite(chi2), chi2, np.inf)
+
+
 def undistorted_bounds(extractor: OrbExtractor) -> tuple[float, float, float, float]:
     """Box (u_min, v_min, u_max, v_max) of the image in undistorted pixel coordinates."""
     camera = extractor.camera
@@ -39,14 +54,10 @@ def project_points(slam_map: Map, ids: list[int], T_cw: np.ndarray, extractor: O
     normals = np.array([p.normal for p in points])
     min_d = np.array([p.min_distance for p in points])
     max_d = np.array([p.max_distance for p in points])
-    pc = positions @ T_cw[:3, :3].T + T_cw[:3, 3]
-    z = pc[:, 2]
-    ok = z > 0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = K[0, 0] * pc[:, 0] / z + K[0, 2]
-        v = K[1, 1] * pc[:, 1] / z + K[1, 2]
+    uv = pinhole_pixels(positions @ T_cw[:3, :3].T + T_cw[:3, 3], K)
+    u, v = uv[:, 0], uv[:, 1]
     u_min, v_min, u_max, v_max = bounds if bounds is not None else undistorted_bounds(extractor)
-    ok &= (u >= u_min) & (u <= u_max) & (v >= v_min) & (v <= v_max)
+    ok = (u >= u_min) & (u <= u_max) & (v >= v_min) & (v <= v_max)  # False for NaN: behind the camera
     centre = -T_cw[:3, :3].T @ T_cw[:3, 3]
     ray = positions - centre
     distance = np.linalg.norm(ray, axis=1)
@@ -59,4 +70,4 @@ def project_points(slam_map: Map, ids: list[int], T_cw: np.ndarray, extractor: O
     with np.errstate(divide="ignore"):
         level = np.ceil(np.log(max_d[rows] / distance[rows]) / np.log(extractor.settings.scale_factor))
     level = np.clip(np.nan_to_num(level, nan=0.0), 0, len(extractor.scale_factors) - 1).astype(int)
-    return Projection(rows, np.c_[u[rows], v[rows]], level, view_cos[rows])
+    return Projection(rows, uv[rows], level, view_cos[rows])

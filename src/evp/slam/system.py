@@ -21,9 +21,10 @@ import numpy as np
 from evp.config import OrbSettings, SlamSettings
 from evp.geometry.transforms import se3_inverse
 from evp.geometry.two_view import initial_two_view
-from evp.slam.bundle_adjustment import BundleProblem, bundle_adjust
+from evp.slam.bundle_adjustment import bundle_adjust
 from evp.slam.local_mapping import InlineMapping, LocalMapper, MappingWorker, NewKeyFrame
 from evp.slam.map import KeyFrame, Map
+from evp.slam.map_adjustment import apply_solution, window_problem
 from evp.slam.pose_optimizer import optimise_pose
 from evp.slam.projection import project_points, undistorted_bounds
 from evp.slam.relocalisation import rank_keyframes, thumbnail
@@ -40,6 +41,13 @@ class _TrackedFrame:
     features: Features
     T_cw: np.ndarray
     point_ids: np.ndarray  # (N,) matched map point per feature, -1 where none
+
+
+@dataclass
+class _InitReference:
+    """The frame initialisation matches later frames against."""
+
+    features: Features
     grey: np.ndarray
     record: int  # index of its record in SlamSystem.records
 
@@ -67,7 +75,7 @@ class SlamSystem:
         self.tracking_ms: list[float] = []  # per frame, without inline mapping
         self.records: list[_FrameRecord] = []
         self.reset_counter = 0  # bumped on relocalisation (a discontinuity for consumers)
-        self._init_reference: _TrackedFrame | None = None
+        self._init_reference: _InitReference | None = None
         self._last: _TrackedFrame | None = None
         self._velocity: np.ndarray | None = None
         self._reference_kf: int | None = None
@@ -75,17 +83,15 @@ class SlamSystem:
         self._last_kf_frame = 0
         self._last_reloc_frame = -(10**9)
         self._last_inliers = 0
-        self._pending_timestamp = 0.0
 
     # --- public ---------------------------------------------------------------------------
 
     def feed(self, frame: Frame) -> PoseEstimate:
         grey = grey_image(frame, self.camera)
-        self._pending_timestamp = frame.timestamp
         self._frame_count += 1
         cv2.setRNGSeed(self._frame_count)
         start = time.perf_counter()
-        mapping_before = sum(self.mapping.mapping_ms) if self.settings.mapping == "inline" else 0.0
+        keyframes_mapped = len(self.mapping.mapping_ms)
         features = self.extractor.extract(grey)
         self.extraction_ms.append((time.perf_counter() - start) * 1000.0)
         if self.state == TrackingState.NOT_INITIALIZED:
@@ -93,8 +99,9 @@ class SlamSystem:
         elif self.state == TrackingState.LOST:
             T_cw = self._relocalise(grey, features)
         else:
-            T_cw = self._track(grey, features)
-        inline_mapping = sum(self.mapping.mapping_ms) - mapping_before if self.settings.mapping == "inline" else 0.0
+            T_cw = self._track(frame.timestamp, grey, features)
+        # inline mapping runs inside this call: its time is mapping, not tracking
+        inline_mapping = sum(self.mapping.mapping_ms[keyframes_mapped:]) if self.settings.mapping == "inline" else 0.0
         self.tracking_ms.append((time.perf_counter() - start) * 1000.0 - inline_mapping)
         return self._answer(frame, T_cw)
 
@@ -131,14 +138,14 @@ class SlamSystem:
         reference = self._init_reference
         if reference is None or len(features) < s.init_min_matches:
             if len(features) >= s.init_min_matches:
-                self._init_reference = self._untracked(features, grey)
+                self._init_reference = self._reference_here(features, grey)
             return None
         ref = reference.features
         rows, cols = match_in_window(ref.descriptors, ref.un_px, features.descriptors, features.un_px, s.init_search_radius_px, TH_LOW, 0.9)
         keep = rotation_consistent(ref.angle[rows], features.angle[cols])
         rows, cols = rows[keep], cols[keep]
         if len(rows) < s.init_min_matches:
-            self._init_reference = self._untracked(features, grey)
+            self._init_reference = self._reference_here(features, grey)
             return None
         result = initial_two_view(
             ref.normalised[rows], features.normalised[cols], self.camera.fx, s.init_min_parallax_deg, s.init_min_triangulated, s.homography_ratio
@@ -168,41 +175,21 @@ class SlamSystem:
         self._reference_kf = kf1.id
         self._last_kf_frame = self._frame_count
         self._velocity = None
-        self._last = _TrackedFrame(features, kf1.T_cw.copy(), kf1.point_ids.copy(), grey, len(self.records))
+        self._last = _TrackedFrame(features, kf1.T_cw.copy(), kf1.point_ids.copy())
         self._last_inliers = int((kf1.point_ids >= 0).sum())
         self.state = TrackingState.OK
         return kf1.T_cw.copy()
 
-    def _untracked(self, features: Features, grey: np.ndarray) -> _TrackedFrame:
-        return _TrackedFrame(features, np.eye(4), np.full(len(features), -1), grey, len(self.records))
+    def _reference_here(self, features: Features, grey: np.ndarray) -> _InitReference:
+        return _InitReference(features, grey, len(self.records))  # this frame's record comes next
 
     def _global_bundle_adjustment(self, keyframes: list[KeyFrame]) -> None:
         """Initial map: optimise both keyframes and all points, the first keyframe fixed."""
-        ids = [kf.id for kf in keyframes]
+        kf_ids = [kf.id for kf in keyframes]
         point_ids = sorted(self.map.points)
-        slot = {k: i for i, k in enumerate(ids)}
-        obs = [(slot[k], j, self.map.keyframes[k].features, i) for j, p in enumerate(point_ids) for k, i in self.map.points[p].observations.items()]
-        problem = BundleProblem(
-            np.array([kf.T_cw for kf in keyframes]),
-            np.array([self.map.points[p].position for p in point_ids]),
-            np.array([o[0] for o in obs]),
-            np.array([o[1] for o in obs]),
-            np.array([o[2].un_px[o[3]] for o in obs]),
-            np.array([self.extractor.scale_factors[o[2].octave[o[3]]] for o in obs]),
-            np.array([True] + [False] * (len(ids) - 1)),
-            self.K,
-        )
-        poses, points, chi2 = bundle_adjust(problem, evaluations=20)
-        for kf, T in zip(keyframes, poses, strict=True):
-            kf.set_pose(T)
-        for j, p in enumerate(point_ids):
-            self.map.points[p].position = points[j]
-        from evp.geometry.two_view import CHI2_2DOF
-
-        for n in np.flatnonzero(~(chi2 < CHI2_2DOF)):
-            point = self.map.points.get(point_ids[problem.point_index[n]])
-            if point is not None:
-                self.map.remove_observation(point, ids[problem.pose_index[n]])
+        fixed = np.array([True] + [False] * (len(kf_ids) - 1))
+        problem = window_problem(self.map, kf_ids, point_ids, fixed, self.extractor.scale_factors, self.K)
+        apply_solution(self.map, problem, kf_ids, point_ids, bundle_adjust(problem, evaluations=20), self.extractor.scale_factors)
 
     def _rescale(self, factor: float) -> None:
         for kf in self.map.keyframes.values():
@@ -219,7 +206,7 @@ class SlamSystem:
 
     # --- tracking -------------------------------------------------------------------------
 
-    def _track(self, grey: np.ndarray, features: Features) -> np.ndarray | None:
+    def _track(self, timestamp: float, grey: np.ndarray, features: Features) -> np.ndarray | None:
         with self.map.lock:
             matched = np.full(len(features), -1)
             T_cw = None
@@ -239,9 +226,9 @@ class SlamSystem:
                 return None
             self._velocity = T_cw @ se3_inverse(self._last.T_cw)
             self._last_inliers = inliers
-            self._last = _TrackedFrame(features, T_cw, matched.copy(), grey, len(self.records))
+            self._last = _TrackedFrame(features, T_cw, matched.copy())
             if self._need_keyframe(inliers):
-                self._insert_keyframe(features, T_cw, matched, grey)
+                self._insert_keyframe(timestamp, features, T_cw, matched, grey)
         return T_cw
 
     def _map_point_arrays(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -259,14 +246,14 @@ class SlamSystem:
         matched[rows[~inlier]] = -1
         return T_cw, int(inlier.sum())
 
-    def _live_ids(self, ids: np.ndarray) -> np.ndarray:
-        return np.array([i for i in ids if i >= 0 and int(i) in self.map.points], dtype=int)
+    def _rows_with_points(self, point_ids: np.ndarray) -> np.ndarray:
+        """Feature rows whose map point still exists (mapping may have culled some)."""
+        return np.array([r for r in np.flatnonzero(point_ids >= 0) if int(point_ids[r]) in self.map.points], dtype=int)
 
     def _track_motion_model(self, features: Features, matched: np.ndarray) -> np.ndarray | None:
         last = self._last
         T_pred = self._velocity @ last.T_cw
-        rows_last = np.flatnonzero(last.point_ids >= 0)
-        rows_last = np.array([r for r in rows_last if int(last.point_ids[r]) in self.map.points], dtype=int)
+        rows_last = self._rows_with_points(last.point_ids)
         if len(rows_last) < 10:
             return None
         ids = last.point_ids[rows_last]
@@ -303,7 +290,7 @@ class SlamSystem:
         if kf is None:
             kf = self.map.keyframes[max(self.map.keyframes)]
             self._reference_kf = kf.id
-        rows = np.array([r for r in np.flatnonzero(kf.point_ids >= 0) if int(kf.point_ids[r]) in self.map.points], dtype=int)
+        rows = self._rows_with_points(kf.point_ids)
         if len(rows) < 15:
             return None
         a, b = match_descriptors(kf.features.descriptors[rows], features.descriptors, TH_LOW, 0.7)
@@ -391,8 +378,8 @@ class SlamSystem:
         # a busy mapper still takes a keyframe when tracking is weak, one at a time
         return bool(c1 and c2 and (idle or (weak and self.mapping.pending == 0)))
 
-    def _insert_keyframe(self, features: Features, T_cw: np.ndarray, matched: np.ndarray, grey: np.ndarray) -> None:
-        kf = self.map.add_keyframe(self._pending_timestamp, T_cw, features, thumbnail(grey))
+    def _insert_keyframe(self, timestamp: float, features: Features, T_cw: np.ndarray, matched: np.ndarray, grey: np.ndarray) -> None:
+        kf = self.map.add_keyframe(timestamp, T_cw, features, thumbnail(grey))
         self._reference_kf = kf.id
         self._last_kf_frame = self._frame_count
         self.mapping.submit(NewKeyFrame(kf, matched.copy()))
@@ -418,7 +405,7 @@ class SlamSystem:
 
     def _relocalise_against(self, features: Features, kf: KeyFrame) -> np.ndarray | None:
         s = self.settings
-        rows = np.array([r for r in np.flatnonzero(kf.point_ids >= 0) if int(kf.point_ids[r]) in self.map.points], dtype=int)
+        rows = self._rows_with_points(kf.point_ids)
         if len(rows) < 15:
             return None
         a, b = match_descriptors(kf.features.descriptors[rows], features.descriptors, TH_LOW, 0.75)
@@ -441,7 +428,7 @@ class SlamSystem:
         T_cw, count = self._track_local_map(features, matched, T_cw)
         if count < s.min_relocalised_inliers:
             return None
-        self._last = _TrackedFrame(features, T_cw, matched.copy(), self._last.grey if self._last else None, len(self.records))
+        self._last = _TrackedFrame(features, T_cw, matched.copy())
         self._last_inliers = count
         return T_cw
 

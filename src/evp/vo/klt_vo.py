@@ -15,6 +15,7 @@ import numpy as np
 
 from evp.config import VoSettings
 from evp.geometry.transforms import se3, se3_inverse
+from evp.geometry.two_view import CHI2_2DOF, check_points, triangulate
 from evp.types import CameraModel, Frame, PoseEstimate, TrackingState
 from evp.vision.images import grey_image
 
@@ -120,10 +121,10 @@ class KltVisualOdometry:
             return self._estimate(frame, TrackingState.NOT_INITIALIZED, 0)
         _, R, t, pose_inliers = cv2.recoverPose(E, x0, x1, np.eye(3), mask=inliers.copy())
         T_cur_kf = se3(R, t.ravel())
-        points_kf, good = self._triangulate(x0, x1, np.eye(4), T_cur_kf)
+        points_kf, good, cos = self._triangulate(x0, x1, np.eye(4), T_cur_kf)
         good &= pose_inliers.ravel() > 0
         # refuse weak or ambiguous two-view geometry rather than start a wrong map
-        if good.sum() < max(s.init_min_points, 0.5 * len(x0)) or self._median_angle_deg(points_kf[good], T_cur_kf) < s.init_min_angle_deg:
+        if good.sum() < max(s.init_min_points, 0.5 * len(x0)) or _median_angle_deg(cos[good]) < s.init_min_angle_deg:
             return self._estimate(frame, TrackingState.NOT_INITIALIZED, 0)
         scale = self._scale_depth / np.median(points_kf[good, 2])
         T_cur_kf[:3, 3] *= scale
@@ -202,33 +203,20 @@ class KltVisualOdometry:
         x0 = self.camera.undistort_points(kf.keypoints[todo])
         x1 = self.camera.undistort_points(self._tracks[todo])
         T_cur_kf = se3_inverse(self._T_world_cam) @ kf.T_world_cam
-        points_kf, good = self._triangulate(x0, x1, np.eye(4), T_cur_kf)
+        points_kf, good, _ = self._triangulate(x0, x1, np.eye(4), T_cur_kf)
         points_world = points_kf @ kf.T_world_cam[:3, :3].T + kf.T_world_cam[:3, 3]
         rows = np.flatnonzero(todo)[good]
         kf.points_world[rows] = points_world[good]
 
-    def _triangulate(self, x0: np.ndarray, x1: np.ndarray, T0: np.ndarray, T1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _triangulate(self, x0: np.ndarray, x1: np.ndarray, T0: np.ndarray, T1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Points in frame 0 from normalised coordinates; mask of those in front of both cameras,
-        with enough parallax and a small reprojection error."""
-        P0 = T0[:3, :]
-        P1 = T1[:3, :]
-        homogeneous = cv2.triangulatePoints(P0, P1, x0.T, x1.T)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            points = (homogeneous[:3] / homogeneous[3]).T
-        in0 = points @ T0[:3, :3].T + T0[:3, 3]
-        in1 = points @ T1[:3, :3].T + T1[:3, 3]
-        good = np.isfinite(points).all(axis=1) & (in0[:, 2] > 0) & (in1[:, 2] > 0)
-        centre1 = -T1[:3, :3].T @ T1[:3, 3]
-        ray0 = points - (-T0[:3, :3].T @ T0[:3, 3])
-        ray1 = points - centre1
-        cos = np.sum(ray0 * ray1, axis=1) / (np.linalg.norm(ray0, axis=1) * np.linalg.norm(ray1, axis=1))
-        good &= cos < np.cos(np.radians(self.settings.min_triangulation_angle_deg))
-        threshold = 2.0 * self.settings.ransac_threshold_px / self.camera.fx
-        with np.errstate(divide="ignore", invalid="ignore"):
-            err0 = np.linalg.norm(in0[:, :2] / in0[:, 2:3] - x0, axis=1)
-            err1 = np.linalg.norm(in1[:, :2] / in1[:, 2:3] - x1, axis=1)
-        good &= (err0 < threshold) & (err1 < threshold)
-        return points, good
+        with enough parallax and a reprojection error under twice the RANSAC threshold; and the
+        cosine of each point's parallax angle."""
+        points = triangulate(T0, T1, x0, x1)
+        sigma2 = (2.0 * self.settings.ransac_threshold_px) ** 2 / CHI2_2DOF  # chi2 bound = (2 x threshold)^2
+        min_parallax_cos = np.cos(np.radians(self.settings.min_triangulation_angle_deg))
+        good, cos = check_points(points, T0, T1, x0, x1, self.camera.fx, sigma2, sigma2, min_parallax_cos)
+        return points, good, cos
 
     def _refine_pose(self, points: np.ndarray, pixels: np.ndarray, guess_T_cam_world: np.ndarray, rvec: np.ndarray, tvec: np.ndarray):
         """Levenberg-Marquardt on the RANSAC inliers, started from the motion-model guess.
@@ -249,14 +237,6 @@ class KltVisualOdometry:
         best = candidates[0] if candidates[0][0] <= candidates[-1][0] * (1 + 1e-6) else candidates[-1]
         return best[1], best[2]
 
-    @staticmethod
-    def _median_angle_deg(points0: np.ndarray, T1_0: np.ndarray) -> float:
-        """Median angle between the two viewing rays of triangulated points (frame 0 at origin)."""
-        centre1 = -T1_0[:3, :3].T @ T1_0[:3, 3]
-        ray1 = points0 - centre1
-        cos = np.sum(points0 * ray1, axis=1) / (np.linalg.norm(points0, axis=1) * np.linalg.norm(ray1, axis=1))
-        return float(np.degrees(np.median(np.arccos(np.clip(cos, -1.0, 1.0)))))
-
     def _new_keyframe(self, grey: np.ndarray, tracked: np.ndarray) -> None:
         kf = self._keyframe
         keep = tracked & np.all(np.isfinite(kf.points_world), axis=1)
@@ -265,3 +245,8 @@ class KltVisualOdometry:
     def _estimate(self, frame: Frame, state: TrackingState, inliers: int) -> PoseEstimate:
         quality = int(min(100, 100 * inliers / max(1, self.settings.max_features // 3)))
         return PoseEstimate(frame.timestamp, self._T_world_cam.copy(), state, quality)
+
+
+def _median_angle_deg(parallax_cos: np.ndarray) -> float:
+    """Median angle between the two viewing rays of triangulated points."""
+    return float(np.degrees(np.median(np.arccos(np.clip(parallax_cos, -1.0, 1.0))))) if len(parallax_cos) else 0.0

@@ -1,0 +1,61 @@
+"""Bundle adjustment of part of the map: the problem built from keyframes and points, and the
+solution written back (poses, positions, outlying observations dropped). Used by initialisation
+(both keyframes) and by local mapping (a covisible window)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from evp.geometry.two_view import CHI2_2DOF
+from evp.slam.bundle_adjustment import BundleProblem
+from evp.slam.map import Map
+
+
+def window_problem(slam_map: Map, kf_ids: list[int], point_ids: list[int], fixed: np.ndarray, scale_factors: np.ndarray, K: np.ndarray) -> BundleProblem:
+    """Every observation of ``point_ids`` by ``kf_ids``; poses flagged in ``fixed`` stay put."""
+    slot = {k: i for i, k in enumerate(kf_ids)}
+    pose_index, point_index, observed, sigma = [], [], [], []
+    for j, p in enumerate(point_ids):
+        for k, index in slam_map.points[p].observations.items():
+            if k in slot:
+                features = slam_map.keyframes[k].features
+                pose_index.append(slot[k])
+                point_index.append(j)
+                observed.append(features.un_px[index])
+                sigma.append(scale_factors[features.octave[index]])
+    return BundleProblem(
+        np.array([slam_map.keyframes[k].T_cw for k in kf_ids]),
+        np.array([slam_map.points[p].position for p in point_ids]),
+        np.array(pose_index, dtype=int),
+        np.array(point_index, dtype=int),
+        np.array(observed).reshape(-1, 2),
+        np.array(sigma),
+        fixed,
+        K,
+    )
+
+
+def apply_solution(
+    slam_map: Map,
+    problem: BundleProblem,
+    kf_ids: list[int],
+    point_ids: list[int],
+    solution: tuple[np.ndarray, np.ndarray, np.ndarray],
+    scale_factors: np.ndarray,
+) -> None:
+    """Write poses and positions back (skipping what was removed meanwhile) and drop observations
+    the solution leaves outside the chi-square bound."""
+    poses, points, chi2 = solution
+    for i, k in enumerate(kf_ids):
+        if not problem.fixed[i] and k in slam_map.keyframes:
+            slam_map.keyframes[k].set_pose(poses[i])
+    for j, p in enumerate(point_ids):
+        if p in slam_map.points:
+            slam_map.points[p].position = points[j]
+    for n in np.flatnonzero(~(chi2 < CHI2_2DOF)):
+        point = slam_map.points.get(point_ids[problem.point_index[n]])
+        if point is not None:
+            slam_map.remove_observation(point, kf_ids[problem.pose_index[n]])
+    for p in point_ids:
+        if p in slam_map.points:
+            slam_map.update_point_geometry(slam_map.points[p], scale_factors, descriptor=False)

@@ -3,12 +3,18 @@
 Issue targets, with a 5 % margin; ORB-SLAM3 on this machine: MH01 0.0049-0.0050 m (359/360),
 KITTI 06 0.056-0.089 m (50/51)."""
 
+import itertools
+
 import pytest
 
-from evp.config import Settings
+from evp.config import OrbSettings, Settings, SlamSettings
 from evp.io.registry import open_dataset
 from evp.pipeline import run_dataset, write_outputs
 from evp.run_setup import camera_for, make_estimator
+from evp.slam.map import Map
+from evp.slam.system import SlamSystem
+from evp.slam.trials import cover_lens_then_revisit, relocalisation_error
+from evp.types import TrackingState
 from tests.conftest import shared
 
 
@@ -22,3 +28,32 @@ def test_sequence_meets_the_accuracy_target(tmp_path, sequence, max_ate_m, min_t
     assert metrics["rmse"] <= max_ate_m * 1.05
     for name in ("trajectory.tum", "trajectory_live.tum", "keyframes.tum", "map.ply", "map.npz", "timing.json", "metrics.json", "settings.yaml"):
         assert (tmp_path / name).is_file()
+
+
+@pytest.fixture(scope="module")
+def euroc_start():
+    dataset = open_dataset(shared("euroc_mh_01_easy_moving_360"))
+    return dataset, list(itertools.islice(dataset.frames(), 150))
+
+
+def test_relocalises_on_real_images(euroc_start):
+    dataset, frames = euroc_start
+    slam = SlamSystem(dataset.camera, OrbSettings(), SlamSettings())
+    first, again = cover_lens_then_revisit(slam, frames, 150, slice(100, 120))
+    assert TrackingState.RELOCALIZED in [e.tracking_state for e in again]
+    index, distance, angle = relocalisation_error(first, again, slice(100, 120))
+    assert index < 5
+    assert distance < 0.02 and angle < 1.0  # map units (median depth 1 = about 3.5 m here)
+
+
+def test_mapping_worker_thread_on_real_images(euroc_start, tmp_path):
+    """The live configuration: local mapping in its own thread, fed by the keyframe queue."""
+    dataset, frames = euroc_start
+    slam = SlamSystem(dataset.camera, OrbSettings(), SlamSettings(mapping="thread"))
+    states = [slam.feed(frame).tracking_state for frame in frames]
+    slam.finish()
+    assert states.count(TrackingState.OK) >= 0.95 * len(frames)
+    assert len(slam.mapping_ms) >= 5 and slam.mapping.max_queue <= 2
+    slam.map.save(tmp_path / "map.npz")
+    loaded = Map.load(tmp_path / "map.npz", slam.extractor.scale_factors)
+    assert len(loaded.keyframes) == len(slam.map.keyframes) and len(loaded.points) == len(slam.map.points)

@@ -14,6 +14,7 @@ from evp.sim.generate import generate
 from evp.sim.scenarios import SimOptions
 from evp.slam.map import Map
 from evp.slam.system import SlamSystem
+from evp.slam.trials import cover_lens_then_revisit, relocalisation_error
 from evp.types import Frame, TrackingState
 
 
@@ -61,22 +62,13 @@ def test_noise_free_tracking_has_near_zero_error(circle, tmp_path):
 def test_relocalises_after_a_forced_loss_without_resetting_the_map(circle):
     dataset, frames = circle
     slam = _system(dataset)
-    for frame in frames[:90]:
-        slam.feed(frame)
-    keyframes_before = set(slam.map.keyframes)
-    assert slam.state == TrackingState.OK
-    blank = np.full_like(frames[0].image, 128)
-    for k in range(3):  # the lens covered: nothing to track
-        estimate = slam.feed(Frame(frames[89].timestamp + 0.01 * (k + 1), blank, 90 + k))
-    assert estimate.tracking_state == TrackingState.LOST
-    # back to a place already mapped
-    states = [slam.feed(Frame(frames[91].timestamp + 0.1 * k + 1.0, frame.image, 100 + k)) for k, frame in enumerate(frames[60:75])]
-    assert TrackingState.RELOCALIZED in [e.tracking_state for e in states]
-    assert keyframes_before & set(slam.map.keyframes)  # the old map is still there
-    relocalised = next(e for e in states if e.tracking_state == TrackingState.RELOCALIZED)
-    index = [e.tracking_state for e in states].index(TrackingState.RELOCALIZED)
-    original = slam.refined_trajectory()
-    assert relocalised.T_world_cam is not None and slam.reset_counter >= 1 and index < 10 and len(original[0]) > 0
+    first, again = cover_lens_then_revisit(slam, frames, 90, slice(60, 75))
+    assert first[-1].tracking_state == TrackingState.OK
+    assert TrackingState.RELOCALIZED in [e.tracking_state for e in again]
+    assert min(slam.map.keyframes) == 0  # the old map is still there
+    index, distance, angle = relocalisation_error(first, again, slice(60, 75))
+    assert index < 10 and slam.reset_counter >= 1
+    assert distance < 0.02 and angle < 1.0  # the same pose as the first time this image was seen
 
 
 def test_bad_frames_raise_specific_errors_and_tracking_goes_on(circle):

@@ -119,6 +119,31 @@ class MonitorSettings(_Section):
     outage_s: float = Field(2.0, gt=0, description="no fix for this long means GPS unavailable")
 
 
+class MavlinkSettings(_Section):
+    """Pose output to a flight controller (``evp serve --mavlink``)."""
+
+    mount: Literal["down", "forward"] = Field("down", description="camera mounting: down (image top towards the nose) or forward")
+    mount_rpy_deg: list[float] = Field(
+        default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3, description="extra rotation of the mount, body axes"
+    )
+    mount_offset_m: list[float] = Field(
+        default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3, description="camera position in the body frame (FRD)"
+    )
+    frame: Literal["local_ned", "local_frd"] = Field("local_ned", description="ODOMETRY frame_id (heading 0 = heading at the start either way)")
+    rate_hz: float = Field(50.0, ge=1.0, le=400.0, description="messages per second")
+    max_extrapolation_s: float = Field(0.2, ge=0.0, description="how long the last pose is carried forward before output stops")
+    system_id: int = Field(1, ge=1, le=255)
+    component_id: int = Field(197, ge=1, le=255, description="197: MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY")
+
+
+class StationSettings(_Section):
+    """The base station (``evp serve``): what it asks the phones for."""
+
+    encoding: Literal["jpeg", "png", "raw"] = Field("jpeg", description="image encoding asked of phones")
+    jpeg_quality: int = Field(85, ge=1, le=100)
+    estimate_on_connect: bool = Field(True, description="start estimating as soon as a mobile station is configured (else wait for the operator)")
+
+
 class Settings(_Section):
     estimator: Literal["auto", "slam", "klt-vo", "nadir"] = Field(
         "auto",
@@ -131,6 +156,8 @@ class Settings(_Section):
     align: AlignmentSettings = AlignmentSettings()
     gps_monitor: MonitorSettings = MonitorSettings()
     eval: EvalSettings = EvalSettings()
+    station: StationSettings = StationSettings()
+    mavlink: MavlinkSettings = MavlinkSettings()
 
 
 # ORB-SLAM2/3 settings keys and where they go in EVP's settings.

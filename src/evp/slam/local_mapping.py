@@ -253,6 +253,9 @@ class MappingWorker:
             if self.queue.empty():
                 self._busy.clear()
 
+    def settle(self) -> None:
+        """Nothing to wait for: the thread maps keyframes as they come."""
+
     def finish(self) -> None:
         self.queue.put(None)
         self._thread.join()
@@ -261,7 +264,12 @@ class MappingWorker:
 
 
 class InlineMapping:
-    """The same interface, processing each keyframe at once (deterministic runs and tests)."""
+    """The same interface, run in the tracking thread (deterministic runs, tests and replays).
+
+    A keyframe is mapped when the next frame arrives (``settle``), before that frame is tracked:
+    the same order of work as mapping at once, but the pose of the keyframe's own frame is
+    answered without waiting for its local bundle adjustment.
+    """
 
     def __init__(self, mapper: LocalMapper):
         self.mapper = mapper
@@ -269,11 +277,16 @@ class InlineMapping:
         self.max_queue = 0
         self.idle = True
         self.pending = 0
+        self._queue: list[NewKeyFrame] = []
 
     def submit(self, item: NewKeyFrame) -> None:
-        start = time.perf_counter()
-        self.mapper.process(item)
-        self.mapping_ms.append((time.perf_counter() - start) * 1000.0)
+        self._queue.append(item)
+
+    def settle(self) -> None:
+        while self._queue:
+            start = time.perf_counter()
+            self.mapper.process(self._queue.pop(0))
+            self.mapping_ms.append((time.perf_counter() - start) * 1000.0)
 
     def finish(self) -> None:
-        return None
+        self.settle()

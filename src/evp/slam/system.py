@@ -72,7 +72,7 @@ class SlamSystem:
         self.mapping = MappingWorker(mapper) if self.settings.mapping == "thread" else InlineMapping(mapper)
         self.state = TrackingState.NOT_INITIALIZED
         self.extraction_ms: list[float] = []
-        self.tracking_ms: list[float] = []  # per frame, without inline mapping
+        self.tracking_ms: list[float] = []  # per frame, without mapping
         self.records: list[_FrameRecord] = []
         self.reset_counter = 0  # bumped on relocalisation (a discontinuity for consumers)
         self._init_reference: _InitReference | None = None
@@ -88,10 +88,10 @@ class SlamSystem:
 
     def feed(self, frame: Frame) -> PoseEstimate:
         grey = grey_image(frame, self.camera)
+        self.settle()
         self._frame_count += 1
         cv2.setRNGSeed(self._frame_count)
         start = time.perf_counter()
-        keyframes_mapped = len(self.mapping.mapping_ms)
         features = self.extractor.extract(grey)
         self.extraction_ms.append((time.perf_counter() - start) * 1000.0)
         if self.state == TrackingState.NOT_INITIALIZED:
@@ -100,10 +100,13 @@ class SlamSystem:
             T_cw = self._relocalise(grey, features)
         else:
             T_cw = self._track(frame.timestamp, grey, features)
-        # inline mapping runs inside this call: its time is mapping, not tracking
-        inline_mapping = sum(self.mapping.mapping_ms[keyframes_mapped:]) if self.settings.mapping == "inline" else 0.0
-        self.tracking_ms.append((time.perf_counter() - start) * 1000.0 - inline_mapping)
+        self.tracking_ms.append((time.perf_counter() - start) * 1000.0)
         return self._answer(frame, T_cw)
+
+    def settle(self) -> None:
+        """Inline mapping: map the last frame's keyframe now (feed does it first otherwise), so a
+        live caller can answer a pose, then map while it waits for the next frame."""
+        self.mapping.settle()
 
     def finish(self) -> None:
         """Wait for local mapping to finish its queue (end of a run)."""

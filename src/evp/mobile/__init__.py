@@ -1,0 +1,1 @@
+"""Mobile station: the Python streaming client (the phone page is served by the station)."""

@@ -1,0 +1,263 @@
+"""``evp stream``: a mobile station in Python (companion computers, tests, benchmarks).
+
+Paced at the recorded rate (``realtime``) the station drops what it cannot keep up with, as it
+would for a phone. As fast as possible, at most ``max_in_flight`` frames are unanswered at a
+time, so the station estimates every frame and the trajectory equals ``evp run``'s.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import ssl
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from urllib.parse import urlsplit, urlunsplit
+
+import numpy as np
+
+from evp.errors import EvpError
+from evp.mobile.sources import StreamSource, telemetry_message
+from evp.station.protocol import (
+    PROTOCOL_VERSION,
+    Bye,
+    CameraConfig,
+    Config,
+    Dropped,
+    Enable,
+    Error,
+    Hello,
+    Pose,
+    ProtocolError,
+    Status,
+    Welcome,
+    decode_text,
+    encode,
+    encode_image,
+)
+from evp.types import Frame
+
+READY_TIMEOUT_S = 120.0
+DRAIN_TIMEOUT_S = 60.0
+
+
+class StreamError(EvpError):
+    """The station refused the stream or the link failed."""
+
+
+def mobile_url(url: str) -> str:
+    """ws(s):// URL of the mobile endpoint from what a user types (http(s)/ws(s), path optional)."""
+    parts = urlsplit(url if "://" in url else f"wss://{url}")
+    scheme = {"http": "ws", "https": "wss"}.get(parts.scheme, parts.scheme)
+    if scheme not in ("ws", "wss"):
+        raise StreamError(f"{url}: the station URL must be ws://, wss://, http:// or https://")
+    path = parts.path if parts.path not in ("", "/") else "/ws/mobile"
+    return urlunsplit((scheme, parts.netloc, path, parts.query, ""))
+
+
+def tls_context(cafile: str | None) -> ssl.SSLContext:
+    """Verify against ``cafile`` (the station's cert.pem) when given; else accept the station's
+    self-signed certificate (its fingerprint is reported, and can be pinned with ``fingerprint``)."""
+    if cafile:
+        context = ssl.create_default_context(cafile=cafile)
+        context.check_hostname = False  # the station's certificate names its addresses, not DNS names users type
+        return context
+    context = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+    context.check_hostname = False
+    context.verify_mode = ssl.CERT_NONE
+    return context
+
+
+@dataclass
+class StreamReport:
+    session_id: str = ""
+    frames_sent: int = 0
+    telemetry_sent: int = 0
+    poses: dict[int, Pose] = field(default_factory=dict)
+    dropped: dict[int, str] = field(default_factory=dict)
+    errors: list[str] = field(default_factory=list)
+    sent_at: dict[int, float] = field(default_factory=dict)
+    latency_ms: dict[int, float] = field(default_factory=dict)
+    fingerprint: str | None = None
+    duration_s: float = 0.0
+
+    def summary(self) -> dict:
+        latencies = np.array(list(self.latency_ms.values())) if self.latency_ms else np.zeros(1)
+        tracked = sum(1 for p in self.poses.values() if p.state in ("OK", "RELOCALIZED"))
+        return {
+            "session_id": self.session_id,
+            "frames_sent": self.frames_sent,
+            "telemetry_sent": self.telemetry_sent,
+            "poses_received": len(self.poses),
+            "poses_tracked": tracked,
+            "frames_dropped": len(self.dropped),
+            "errors": len(self.errors),
+            "first_errors": self.errors[:5],
+            "latency_ms_p50": round(float(np.percentile(latencies, 50)), 2),
+            "latency_ms_p95": round(float(np.percentile(latencies, 95)), 2),
+            "duration_s": round(self.duration_s, 3),
+            "tls_fingerprint_sha256": self.fingerprint,
+        }
+
+
+class StreamClient:
+    def __init__(
+        self,
+        url: str,
+        token: str = "",
+        device: str = "evp-stream",
+        cafile: str | None = None,
+        fingerprint: str | None = None,
+        on_pose: Callable[[Pose], None] | None = None,
+        log: Callable[[str], None] | None = None,
+    ):
+        self.url = mobile_url(url)
+        self.token = token
+        self.device = device
+        self.cafile = cafile
+        self.pin = fingerprint.upper() if fingerprint else None
+        self.on_pose = on_pose
+        self.log = log or (lambda text: print(text, file=sys.stderr))
+        self.report = StreamReport()
+        self._answered = asyncio.Event()
+        self._ready = asyncio.Event()
+        self._in_flight: set[int] = set()
+
+    async def _connect(self):
+        import websockets
+
+        try:
+            return await websockets.connect(self.url, ssl=tls_context(self.cafile) if self.url.startswith("wss") else None, max_size=2**25, open_timeout=20)
+        except (OSError, websockets.exceptions.InvalidHandshake, websockets.exceptions.InvalidMessage, ssl.SSLError, TimeoutError) as exc:
+            if self.url.startswith("ws://"):
+                self.log(f"{self.url}: no plain WebSocket there ({exc.__class__.__name__}); trying TLS")
+                self.url = "wss://" + self.url[len("ws://") :]
+                return await self._connect()
+            raise StreamError(f"cannot connect to {self.url}: {exc}") from exc
+
+    def _check_certificate(self, connection) -> None:
+        from evp.station.tls import der_fingerprint
+
+        ssl_object = connection.transport.get_extra_info("ssl_object")
+        if ssl_object is None:
+            return
+        self.report.fingerprint = der_fingerprint(ssl_object.getpeercert(binary_form=True))
+        if self.pin and self.report.fingerprint != self.pin:
+            raise StreamError(f"the station's certificate {self.report.fingerprint} is not the pinned {self.pin}")
+        if not self.pin and not self.cafile:
+            self.log(f"station certificate SHA-256 {self.report.fingerprint} (pin it with --fingerprint)")
+
+    async def run(
+        self, source: StreamSource, realtime: bool, encoding: str, jpeg_quality: int = 90, resume: str | None = None, max_in_flight: int = 2
+    ) -> StreamReport:
+        start = time.monotonic()
+        connection = await self._connect()
+        try:
+            self._check_certificate(connection)
+            await connection.send(encode(Hello(protocol=PROTOCOL_VERSION, token=self.token, device=self.device, resume=resume)))
+            welcome = decode_text(await asyncio.wait_for(connection.recv(), 20))
+            if isinstance(welcome, Error):
+                raise StreamError(f"station refused the stream: {welcome.code}: {welcome.message}")
+            if not isinstance(welcome, Welcome):
+                raise StreamError(f"expected welcome, got {welcome.type}")
+            self.report.session_id = welcome.session_id
+            receiver = asyncio.create_task(self._receive(connection))
+            fields = ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+            camera = CameraConfig(**{f: getattr(source.camera, f) for f in fields})
+            await connection.send(encode(Config(camera=camera, fps=source.fps, encoding=encoding if encoding != "raw" else "raw", color_space="bgr")))
+            try:
+                await asyncio.wait_for(self._ready.wait(), READY_TIMEOUT_S)
+            except TimeoutError:
+                self.log(f"the station's estimator was not ready within {READY_TIMEOUT_S:.0f} s; streaming anyway")
+            await self._send_items(connection, source, realtime, encoding, jpeg_quality, max_in_flight, receiver)
+            await self._drain(receiver)
+            await connection.send(encode(Bye()))
+            await self._drain(receiver)
+            receiver.cancel()
+        finally:
+            await connection.close()
+            self.report.duration_s = time.monotonic() - start
+        return self.report
+
+    async def _send_items(
+        self, connection, source: StreamSource, realtime: bool, encoding: str, jpeg_quality: int, max_in_flight: int, receiver: asyncio.Task
+    ) -> None:
+        pace_start = None
+        for item in source.items:
+            if receiver.done():
+                receiver.result()  # re-raises the link failure
+                raise StreamError("the station closed the connection")
+            if realtime and not source.live:
+                now = time.monotonic()
+                pace_start = pace_start or (now - item.timestamp)
+                await asyncio.sleep(max(0.0, pace_start + item.timestamp - now))
+            if isinstance(item, Frame):
+                while not realtime and len(self._in_flight) >= max_in_flight:
+                    self._answered.clear()
+                    await asyncio.wait([receiver, asyncio.create_task(self._answered.wait())], return_when=asyncio.FIRST_COMPLETED)
+                    if receiver.done():
+                        break
+                message = await asyncio.to_thread(encode_image, item.image, item.index, item.timestamp, encoding, jpeg_quality)
+                self._in_flight.add(message.seq)
+                self.report.sent_at[message.seq] = time.monotonic()
+                await connection.send(message.pack())
+                self.report.frames_sent += 1
+            else:
+                telemetry = telemetry_message(item)
+                if telemetry is not None:
+                    await connection.send(encode(telemetry))
+                    self.report.telemetry_sent += 1
+        for problem in source.skipped:
+            self.report.errors.append(f"source: {problem}")
+
+    async def _drain(self, receiver: asyncio.Task) -> None:
+        deadline = time.monotonic() + DRAIN_TIMEOUT_S
+        while self._in_flight and not receiver.done() and time.monotonic() < deadline:
+            self._answered.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._answered.wait(), 0.5)
+
+    def _resolve(self, seq: int | None) -> None:
+        if seq is not None:
+            self._in_flight.discard(seq)
+        self._answered.set()
+
+    async def _receive(self, connection) -> None:
+        import websockets
+
+        try:
+            async for text in connection:
+                try:
+                    message = decode_text(text)
+                except ProtocolError as exc:
+                    self.report.errors.append(f"undecodable reply: {exc}")
+                    continue
+                self._handle(message)
+        except websockets.exceptions.ConnectionClosedError as exc:
+            raise StreamError(f"link lost: {exc}") from exc
+        finally:
+            self._answered.set()
+
+    def _handle(self, message) -> None:
+        now = time.monotonic()
+        if isinstance(message, Pose):
+            self.report.poses[message.seq] = message
+            if message.seq in self.report.sent_at:
+                self.report.latency_ms[message.seq] = (now - self.report.sent_at[message.seq]) * 1000.0
+            self._resolve(message.seq)
+            if self.on_pose:
+                self.on_pose(message)
+        elif isinstance(message, Dropped):
+            self.report.dropped[message.seq] = message.reason
+            self._resolve(message.seq)
+        elif isinstance(message, Error):
+            self.report.errors.append(f"{message.code}: {message.message}")
+            self.log(f"station error: {message.code}: {message.message}")
+            self._resolve(message.seq)
+        elif isinstance(message, Status):
+            if message.state in ("running", "stopped"):
+                self._ready.set()
+        elif isinstance(message, Enable):
+            self.log(f"estimation {'enabled' if message.enabled else 'disabled'} by the station")

@@ -1,0 +1,133 @@
+"""What ``evp stream`` can send: a dataset or recording, a video file, a local camera, an MJPEG URL.
+
+Every source gives the camera model and a time-ordered stream of frames and telemetry. Live
+sources (camera, URL) are stamped with the local monotonic clock as frames arrive.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+
+from evp.errors import DatasetError, EvpError
+from evp.io.dataset import TelemetryRecord
+from evp.types import BaroSample, CameraModel, Frame, GpsFix, ImuSample, WheelOdometry, WifiScan
+
+
+@dataclass
+class StreamSource:
+    name: str
+    camera: CameraModel
+    fps: float
+    items: Iterator[Frame | TelemetryRecord]
+    live: bool  # frames arrive in real time (camera, URL): no pacing needed
+    lossless: bool  # the frames are exact (image files): stream them losslessly by default
+    skipped: list[str]
+
+
+def _camera_model(spec: str | None, width: int, height: int) -> CameraModel:
+    """A calibration file or shipped profile, scaled to the source's resolution."""
+    from evp.calib.camera_files import read_camera
+    from evp.calib.profiles import load_profile
+
+    camera = read_camera(spec) if spec and Path(spec).is_file() else load_profile(spec or "nexus5x_640x380")
+    return camera if (camera.width, camera.height) == (width, height) else camera.scaled(width, height)
+
+
+def _capture_frames(capture: cv2.VideoCapture, max_frames: int | None) -> Iterator[Frame]:
+    index = 0
+    start = time.monotonic()
+    try:
+        while max_frames is None or index < max_frames:
+            ok, image = capture.read()
+            if not ok:
+                return
+            yield Frame(time.monotonic() - start, image, index=index, source="capture")
+            index += 1
+    finally:
+        capture.release()
+
+
+def _open_capture(spec: str, camera_spec: str | None, max_frames: int | None) -> StreamSource:
+    target: int | str = int(spec.split(":", 1)[1]) if spec.startswith("camera:") else spec
+    capture = cv2.VideoCapture(target)
+    if not capture.isOpened():
+        raise EvpError(f"{spec}: cannot open (no such camera, or the URL does not serve a video/MJPEG stream)")
+    width, height = int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT))
+    fps = capture.get(cv2.CAP_PROP_FPS) or 30.0
+    camera = _camera_model(camera_spec, width, height)
+    return StreamSource(spec, camera, float(fps), _capture_frames(capture, max_frames), live=True, lossless=False, skipped=[])
+
+
+def _dataset_items(dataset, max_frames: int | None, errors: list[DatasetError]) -> Iterator[Frame | TelemetryRecord]:
+    import heapq
+    import itertools
+
+    frames = dataset.frames(errors)
+    if max_frames is not None:
+        frames = itertools.islice(frames, max_frames)
+    frames = list(frames) if max_frames is not None else frames
+    telemetry = dataset.telemetry()
+    if max_frames is not None and frames:
+        end = frames[-1].timestamp
+        telemetry = (t for t in telemetry if t.timestamp <= end)
+    return heapq.merge(frames, telemetry, key=lambda record: record.timestamp)
+
+
+def open_source(spec: str, camera_spec: str | None = None, max_frames: int | None = None, fmt: str | None = None) -> StreamSource:
+    """``camera:N`` (local camera N), an http(s)/rtsp URL (MJPEG, e.g. IP Webcam), else a dataset,
+    recording or video file (format auto-detected as for ``evp run``)."""
+    if spec.startswith("camera:") or spec.startswith(("http://", "https://", "rtsp://")):
+        return _open_capture(spec, camera_spec, max_frames)
+    from evp.io.registry import open_dataset
+
+    dataset = open_dataset(Path(spec), fmt)
+    if camera_spec:
+        first = dataset.camera
+        camera = _camera_model(camera_spec, first.width, first.height) if first else _camera_model(camera_spec, 640, 380)
+    elif dataset.camera is None:
+        raise EvpError(f"{spec}: no calibration in the dataset; give --camera FILE or a profile name")
+    else:
+        camera = dataset.camera
+    errors: list[DatasetError] = []
+    fps = 30.0
+    if dataset.num_frames > 1:
+        import numpy as np
+
+        fps = float(1.0 / np.median(np.diff(dataset.frame_times)))
+    lossless = dataset.format != "video"
+    source = StreamSource(dataset.name, camera, fps, _dataset_items(dataset, max_frames, errors), live=False, lossless=lossless, skipped=[])
+    source.skipped = errors  # filled as frames are read
+    return source
+
+
+def telemetry_message(record: TelemetryRecord):
+    """The protocol message for a telemetry record, or None for kinds the protocol does not carry."""
+    import math
+
+    from evp.station.protocol import BaroTelemetry, GpsTelemetry, ImuTelemetry, WheelTelemetry, WifiTelemetry
+
+    def optional(value: float) -> float | None:
+        return value if math.isfinite(value) else None
+
+    if isinstance(record, ImuSample):
+        return ImuTelemetry(timestamp=record.timestamp, gyro_rad_s=list(record.angular_velocity_rad_s), accel_m_s2=list(record.linear_acceleration_m_s2))
+    if isinstance(record, GpsFix):
+        return GpsTelemetry(
+            timestamp=record.timestamp, latitude_deg=record.latitude_deg, longitude_deg=record.longitude_deg, altitude_m=record.altitude_m,
+            horizontal_accuracy_m=optional(record.horizontal_accuracy_m), vertical_accuracy_m=optional(record.vertical_accuracy_m),
+        )  # fmt: skip
+    if isinstance(record, BaroSample):
+        return BaroTelemetry(timestamp=record.timestamp, pressure_pa=record.pressure_pa, altitude_m=optional(record.altitude_m))
+    if isinstance(record, WheelOdometry):
+        return WheelTelemetry(
+            timestamp=record.timestamp, wheel_speeds_m_s=list(record.wheel_speeds_m_s),
+            forward_speed_m_s=optional(record.forward_speed_m_s), yaw_rate_rad_s=optional(record.yaw_rate_rad_s),
+        )  # fmt: skip
+    if isinstance(record, WifiScan):
+        return WifiTelemetry(timestamp=record.timestamp, rssi_dbm=dict(record.rssi_dbm))
+    return None

@@ -1,0 +1,1 @@
+"""Base station: link protocol, sessions, recording, operator web UI, MAVLink output."""

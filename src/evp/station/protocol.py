@@ -1,0 +1,353 @@
+"""The EVP link protocol (version 1): JSON text messages and binary image frames over a WebSocket.
+
+docs/protocol.md is the reference for both ends. Decoding never raises anything but
+:class:`ProtocolError`, whose ``code`` is what the peer gets back in an ``error`` message.
+Quaternions on the wire are (qw, qx, qy, qz), as in the EVP paper.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import struct
+from dataclasses import dataclass
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+PROTOCOL_VERSION = 1
+MAX_TEXT_BYTES = 64 * 1024
+MAX_IMAGE_BYTES = 16 * 1024 * 1024
+MAX_IMAGE_SIDE = 8192
+
+ERROR_CODES = (
+    "malformed",  # not JSON, not an object, a field missing or of the wrong type
+    "oversized",  # larger than MAX_TEXT_BYTES / MAX_IMAGE_BYTES
+    "unknown_type",  # a "type" (or telemetry "kind") this version does not know
+    "bad_version",  # hello with another protocol version
+    "bad_token",  # hello without the station's token
+    "not_ready",  # a message that needs hello (or config) first
+    "unknown_session",  # hello resuming a session the station does not have
+    "out_of_order",  # sequence number or timestamp not increasing
+    "corrupt_image",  # the image payload does not decode
+    "internal",  # the station failed; the session goes on
+)
+
+
+class ProtocolError(Exception):
+    """A message the station refuses; ``code`` is one of ERROR_CODES."""
+
+    def __init__(self, code: str, message: str, seq: int | None = None):
+        assert code in ERROR_CODES, code
+        super().__init__(f"{code}: {message}")
+        self.code = code
+        self.message = message
+        self.seq = seq
+
+
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+Vector3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
+
+
+class _Message(BaseModel):
+    model_config = ConfigDict(extra="ignore", frozen=True)
+
+
+class Hello(_Message):
+    type: Literal["hello"] = "hello"
+    protocol: int
+    token: str = Field("", max_length=256)
+    device: str = Field("", max_length=128)
+    resume: str | None = Field(None, max_length=64, description="session id to continue after a dropped link")
+
+
+class Welcome(_Message):
+    type: Literal["welcome"] = "welcome"
+    protocol: int = PROTOCOL_VERSION
+    session_id: str
+    resumed: bool = False
+    server: str = ""
+
+
+class CameraConfig(_Message):
+    """Pinhole + OpenCV radial-tangential distortion, at the streamed resolution."""
+
+    width: int = Field(gt=0, le=MAX_IMAGE_SIDE)
+    height: int = Field(gt=0, le=MAX_IMAGE_SIDE)
+    fx: Finite = Field(gt=0)
+    fy: Finite = Field(gt=0)
+    cx: Finite
+    cy: Finite
+    k1: Finite = 0.0
+    k2: Finite = 0.0
+    p1: Finite = 0.0
+    p2: Finite = 0.0
+    k3: Finite = 0.0
+
+
+class OrbConfig(_Message):
+    n_features: int = Field(ge=50, le=20000)
+    pyramid_levels: int = Field(ge=1, le=16)
+    scale_factor: Finite = Field(gt=1.0, le=2.0)
+    ini_fast_threshold: int = Field(ge=1, le=255)
+    min_fast_threshold: int = Field(ge=1, le=255)
+
+
+class Config(_Message):
+    """Camera and estimation settings; from the phone (what it streams) or the station (what to stream)."""
+
+    type: Literal["config"] = "config"
+    camera: CameraConfig | None = None
+    fps: Finite | None = Field(None, gt=0, le=1000)
+    color_space: Literal["gray", "bgr", "rgb"] | None = None
+    encoding: Literal["jpeg", "png", "raw"] | None = None
+    jpeg_quality: int | None = Field(None, ge=1, le=100)
+    orb: OrbConfig | None = None
+
+
+class Enable(_Message):
+    type: Literal["enable"] = "enable"
+    enabled: bool
+
+
+class Status(_Message):
+    type: Literal["status"] = "status"
+    state: Literal["waiting_config", "starting", "running", "stopped"]
+    estimating: bool = False
+    frames_received: int = 0
+    frames_estimated: int = 0
+    frames_dropped: int = 0
+    fps: float = 0.0
+    latency_ms_p50: float = 0.0
+    message: str = ""
+
+
+class ImuTelemetry(_Message):
+    type: Literal["telemetry"] = "telemetry"
+    kind: Literal["imu"] = "imu"
+    timestamp: Finite
+    gyro_rad_s: Vector3
+    accel_m_s2: Vector3
+
+
+class GpsTelemetry(_Message):
+    type: Literal["telemetry"] = "telemetry"
+    kind: Literal["gps"] = "gps"
+    timestamp: Finite
+    latitude_deg: Finite = Field(ge=-90, le=90)
+    longitude_deg: Finite = Field(ge=-180, le=180)
+    altitude_m: Finite
+    horizontal_accuracy_m: Finite | None = Field(None, ge=0)
+    vertical_accuracy_m: Finite | None = Field(None, ge=0)
+
+
+class BaroTelemetry(_Message):
+    type: Literal["telemetry"] = "telemetry"
+    kind: Literal["baro"] = "baro"
+    timestamp: Finite
+    pressure_pa: Finite = Field(gt=0)
+    altitude_m: Finite | None = None
+
+
+class WheelTelemetry(_Message):
+    type: Literal["telemetry"] = "telemetry"
+    kind: Literal["wheel"] = "wheel"
+    timestamp: Finite
+    wheel_speeds_m_s: list[Finite] = Field(default_factory=list, max_length=16)
+    forward_speed_m_s: Finite | None = None
+    yaw_rate_rad_s: Finite | None = None
+
+
+class WifiTelemetry(_Message):
+    type: Literal["telemetry"] = "telemetry"
+    kind: Literal["wifi"] = "wifi"
+    timestamp: Finite
+    rssi_dbm: dict[Annotated[str, Field(max_length=64)], Finite] = Field(default_factory=dict, max_length=512)
+
+
+TELEMETRY = {"imu": ImuTelemetry, "gps": GpsTelemetry, "baro": BaroTelemetry, "wheel": WheelTelemetry, "wifi": WifiTelemetry}
+Telemetry = ImuTelemetry | GpsTelemetry | BaroTelemetry | WheelTelemetry | WifiTelemetry
+
+
+class Pose(_Message):
+    """The estimate for one image: camera-to-world translation and rotation (qw, qx, qy, qz)."""
+
+    type: Literal["pose"] = "pose"
+    seq: int
+    timestamp: float
+    t: list[float]
+    q: list[float]
+    state: Literal["NOT_INITIALIZED", "OK", "LOST", "RELOCALIZED"]
+    quality: int = Field(0, ge=0, le=100)
+    reset_counter: int = 0
+    covariance: list[float] | None = Field(None, description="6x6 row-major over (x, y, z, roll, pitch, yaw), when known")
+    processing_ms: float = 0.0
+
+
+class Dropped(_Message):
+    """A frame that gets no pose: stale (a newer one arrived first), estimation off, or no camera yet."""
+
+    type: Literal["dropped"] = "dropped"
+    seq: int
+    reason: Literal["stale", "estimation_off", "not_configured", "closing"]
+
+
+class Log(_Message):
+    type: Literal["log"] = "log"
+    level: Literal["debug", "info", "warning", "error"] = "info"
+    text: str = Field(max_length=4096)
+
+
+class Error(_Message):
+    type: Literal["error"] = "error"
+    code: str
+    message: str
+    seq: int | None = None
+
+
+class Bye(_Message):
+    type: Literal["bye"] = "bye"
+
+
+MESSAGES: dict[str, type[_Message]] = {
+    "hello": Hello,
+    "welcome": Welcome,
+    "config": Config,
+    "enable": Enable,
+    "status": Status,
+    "pose": Pose,
+    "dropped": Dropped,
+    "log": Log,
+    "error": Error,
+    "bye": Bye,
+}
+Message = Hello | Welcome | Config | Enable | Status | Pose | Dropped | Log | Error | Bye | Telemetry
+
+
+def _reject_constant(name: str) -> float:
+    raise ValueError(f"{name} is not JSON")
+
+
+def decode_text(text: str | bytes) -> Message:
+    """One JSON text message; any problem raises ProtocolError."""
+    if len(text) > MAX_TEXT_BYTES:
+        raise ProtocolError("oversized", f"text message of {len(text)} bytes (limit {MAX_TEXT_BYTES})")
+    try:
+        data = json.loads(text, parse_constant=_reject_constant)
+    except (ValueError, RecursionError) as exc:
+        raise ProtocolError("malformed", f"not JSON ({str(exc)[:80]})") from None
+    if not isinstance(data, dict):
+        raise ProtocolError("malformed", f"a message is a JSON object, got {type(data).__name__}")
+    kind = data.get("type")
+    if kind == "telemetry":
+        sensor = data.get("kind")
+        model = TELEMETRY.get(sensor) if isinstance(sensor, str) else None
+        if model is None:
+            raise ProtocolError("unknown_type", f"unknown telemetry kind {str(sensor)[:40]!r} (known: {', '.join(TELEMETRY)})")
+    else:
+        model = MESSAGES.get(kind) if isinstance(kind, str) else None
+        if model is None:
+            raise ProtocolError("unknown_type", f"unknown message type {str(kind)[:40]!r}")
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"]) or kind
+        raise ProtocolError("malformed", f"{kind}: {where}: {first['msg']}") from None
+    except RecursionError:
+        raise ProtocolError("malformed", f"{kind}: nested too deeply") from None
+
+
+def encode(message: _Message) -> str:
+    return message.model_dump_json(exclude_none=True)
+
+
+# --- images ---------------------------------------------------------------------------------
+
+IMAGE_MAGIC = b"EVPI"
+IMAGE_HEADER = struct.Struct("<4sBBHIHHdI4x")  # magic, version, encoding, reserved, seq, width, height, timestamp, length
+ENCODINGS = {1: "jpeg", 2: "png", 3: "gray8", 4: "bgr8", 5: "rgb8"}
+ENCODING_IDS = {name: code for code, name in ENCODINGS.items()}
+RAW_CHANNELS = {"gray8": 1, "bgr8": 3, "rgb8": 3}
+
+
+@dataclass(frozen=True)
+class ImageMessage:
+    """One camera image as sent: the payload is decoded only when the estimator needs it."""
+
+    seq: int
+    timestamp: float
+    encoding: str
+    width: int
+    height: int
+    payload: bytes
+
+    def pack(self) -> bytes:
+        header = IMAGE_HEADER.pack(
+            IMAGE_MAGIC, PROTOCOL_VERSION, ENCODING_IDS[self.encoding], 0, self.seq, self.width, self.height, self.timestamp, len(self.payload)
+        )
+        return header + self.payload
+
+
+def decode_image(data: bytes) -> ImageMessage:
+    """The header of one binary image frame, checked against its payload."""
+    if len(data) > MAX_IMAGE_BYTES + IMAGE_HEADER.size:
+        raise ProtocolError("oversized", f"image frame of {len(data)} bytes (limit {MAX_IMAGE_BYTES})")
+    if len(data) < IMAGE_HEADER.size:
+        raise ProtocolError("malformed", f"image frame of {len(data)} bytes is shorter than its {IMAGE_HEADER.size}-byte header")
+    magic, version, encoding_id, _, seq, width, height, timestamp, length = IMAGE_HEADER.unpack_from(data)
+    if magic != IMAGE_MAGIC:
+        raise ProtocolError("malformed", f"image frame starts with {magic!r}, not {IMAGE_MAGIC!r}")
+    if version != PROTOCOL_VERSION:
+        raise ProtocolError("bad_version", f"image frame of protocol version {version}, station speaks {PROTOCOL_VERSION}", seq)
+    encoding = ENCODINGS.get(encoding_id)
+    if encoding is None:
+        raise ProtocolError("unknown_type", f"image encoding {encoding_id} (known: {ENCODINGS})", seq)
+    if not (0 < width <= MAX_IMAGE_SIDE and 0 < height <= MAX_IMAGE_SIDE):
+        raise ProtocolError("malformed", f"image size {width}x{height}", seq)
+    if not math.isfinite(timestamp):
+        raise ProtocolError("malformed", f"image timestamp {timestamp}", seq)
+    payload = data[IMAGE_HEADER.size :]
+    if len(payload) != length:
+        raise ProtocolError("malformed", f"image payload is {len(payload)} bytes, header says {length}", seq)
+    if encoding in RAW_CHANNELS and length != width * height * RAW_CHANNELS[encoding]:
+        raise ProtocolError("malformed", f"{encoding} {width}x{height} needs {width * height * RAW_CHANNELS[encoding]} bytes, got {length}", seq)
+    return ImageMessage(seq, timestamp, encoding, width, height, payload)
+
+
+def image_pixels(message: ImageMessage) -> np.ndarray:
+    """The image as grey or BGR uint8; a payload that does not decode to the announced size raises."""
+    import cv2
+
+    if message.encoding in RAW_CHANNELS:
+        channels = RAW_CHANNELS[message.encoding]
+        pixels = np.frombuffer(message.payload, dtype=np.uint8).reshape(message.height, message.width, channels)
+        if message.encoding == "rgb8":
+            return cv2.cvtColor(pixels, cv2.COLOR_RGB2BGR)
+        return pixels[:, :, 0].copy() if channels == 1 else pixels.copy()
+    pixels = cv2.imdecode(np.frombuffer(message.payload, dtype=np.uint8), cv2.IMREAD_UNCHANGED) if message.payload else None
+    if pixels is None:
+        raise ProtocolError("corrupt_image", f"{message.encoding} payload of {len(message.payload)} bytes does not decode", message.seq)
+    if pixels.shape[:2] != (message.height, message.width):
+        raise ProtocolError("corrupt_image", f"decodes to {pixels.shape[1]}x{pixels.shape[0]}, header says {message.width}x{message.height}", message.seq)
+    if pixels.ndim == 3 and pixels.shape[2] == 4:
+        pixels = cv2.cvtColor(pixels, cv2.COLOR_BGRA2BGR)
+    return pixels
+
+
+def encode_image(image: np.ndarray, seq: int, timestamp: float, encoding: str = "jpeg", jpeg_quality: int = 90) -> ImageMessage:
+    """Pack a grey or BGR uint8 image; ``encoding`` is jpeg, png or raw (gray8/bgr8 by channels)."""
+    import cv2
+
+    height, width = image.shape[:2]
+    if encoding == "raw":
+        encoding = "gray8" if image.ndim == 2 else "bgr8"
+        payload = np.ascontiguousarray(image).tobytes()
+    else:
+        params = [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality] if encoding == "jpeg" else [cv2.IMWRITE_PNG_COMPRESSION, 1]
+        ok, buffer = cv2.imencode(".jpg" if encoding == "jpeg" else ".png", image, params)
+        if not ok:
+            raise ValueError(f"OpenCV could not encode a {width}x{height} image as {encoding}")
+        payload = buffer.tobytes()
+    return ImageMessage(seq, float(timestamp), encoding, width, height, payload)

@@ -1,0 +1,58 @@
+"""``evp serve``: the station on uvicorn, over TLS with its own certificate unless told otherwise."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from evp.config import Settings
+from evp.station.protocol import MAX_IMAGE_BYTES
+from evp.station.server import create_app
+from evp.station.station import Station
+from evp.station.tls import ensure_certificate, fingerprint, local_addresses
+
+
+def link_info(host: str, port: int, tls: bool, cert: Path | None, token: str) -> dict:
+    """The addresses an operator and a phone use, and the certificate to trust."""
+    scheme = "https" if tls else "http"
+    reachable = host if host not in ("0.0.0.0", "::", "") else next((a for a in local_addresses() if a != "127.0.0.1"), "127.0.0.1")
+    phone_url = f"{scheme}://{reachable}:{port}/phone" + (f"?token={token}" if token else "")
+    return {
+        "host": host,
+        "port": port,
+        "tls": tls,
+        "operator_url": f"{scheme}://{reachable}:{port}/",
+        "phone_url": phone_url,
+        "mobile_ws_url": f"{'wss' if tls else 'ws'}://{reachable}:{port}/ws/mobile",
+        "fingerprint_sha256": fingerprint(cert) if cert else None,
+        "token_required": bool(token),
+    }
+
+
+def serve(host: str, port: int, data_dir: Path, settings: Settings, db_url: str | None, mavlink_url: str | None, token: str, tls: bool, echo) -> None:
+    import uvicorn
+
+    data_dir.mkdir(parents=True, exist_ok=True)
+    cert, key = ensure_certificate(data_dir / "tls") if tls else (None, None)
+    station = Station(data_dir, settings, db_url, token, mavlink_url)
+    station.link = link_info(host, port, tls, cert, token)
+    echo(f"EVP base station: operator UI {station.link['operator_url']}  phone page {station.link['phone_url']}")
+    echo(f"mobile stations connect to {station.link['mobile_ws_url']}; data in {data_dir.resolve()}")
+    if cert:
+        echo(f"TLS certificate {cert} (self-signed), SHA-256 {station.link['fingerprint_sha256']}")
+    if not token:
+        echo("no --token: any client that reaches this port may stream to the station")
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    config = uvicorn.Config(
+        create_app(station),
+        host=host,
+        port=port,
+        ssl_certfile=str(cert) if cert else None,
+        ssl_keyfile=str(key) if key else None,
+        ws_max_size=2 * MAX_IMAGE_BYTES,  # up to twice the limit still gets a specific 'oversized' error
+        ws_ping_interval=5.0,
+        ws_ping_timeout=10.0,
+        log_level="warning",
+        lifespan="on",
+    )
+    uvicorn.Server(config).run()

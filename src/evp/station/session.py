@@ -1,0 +1,329 @@
+"""One mobile station's session: checks each message, records it, feeds the estimator, answers.
+
+Transport-free: the WebSocket handler passes messages in and gives it a ``send`` callable for the
+replies (``None`` while the link is down; poses computed meanwhile are still recorded). Every
+message that parses is recorded before anything else happens to it, so bad input, a dropped link
+or a failing estimator never loses what was received.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from evp.station.estimation import EstimatorWorker, WorkerEvents
+from evp.station.protocol import (
+    Bye,
+    CameraConfig,
+    Config,
+    Dropped,
+    Enable,
+    Error,
+    ImageMessage,
+    Log,
+    Pose,
+    ProtocolError,
+    Status,
+    Telemetry,
+    decode_image,
+    decode_text,
+    encode,
+)
+from evp.station.recording import SessionRecording
+from evp.station.store import SessionStore
+from evp.types import CameraModel
+
+
+class StationHooks(Protocol):
+    """What a session tells the station (operator UI, MAVLink, estimator settings)."""
+
+    def settings_json(self) -> str: ...
+    def on_pose(self, session: LiveSession, pose: Pose, latency_ms: float) -> None: ...
+    def on_event(self, session: LiveSession, event: dict) -> None: ...
+    def on_status(self, session: LiveSession) -> None: ...
+    def on_new_map(self, session: LiveSession) -> None: ...
+
+
+@dataclass
+class Counters:
+    frames_received: int = 0
+    frames_estimated: int = 0
+    frames_dropped: int = 0
+    poses_sent: int = 0
+    errors: int = 0
+    latencies_ms: deque = field(default_factory=lambda: deque(maxlen=300))
+    estimated_times: deque = field(default_factory=lambda: deque(maxlen=120))  # wall times of recent poses
+
+    def fps(self, now: float) -> float:
+        recent = [t for t in self.estimated_times if now - t <= 2.0]
+        return (len(recent) - 1) / (recent[-1] - recent[0]) if len(recent) > 2 and recent[-1] > recent[0] else 0.0
+
+    def latency_p50(self) -> float:
+        return float(np.median(self.latencies_ms)) if self.latencies_ms else 0.0
+
+
+class LiveSession:
+    def __init__(self, session_id: str, device: str, store: SessionStore, recording_path: Path, station: StationHooks, estimating: bool = True):
+        self.id = session_id
+        self.device = device
+        self.store = store
+        self.station = station
+        self.recording = SessionRecording(recording_path)
+        self.camera: CameraConfig | None = None
+        self.estimating = estimating
+        self.worker: EstimatorWorker | None = None
+        self.send: Callable[[str], None] | None = None
+        self.counters = Counters()
+        self.connected = False
+        self.ended = False
+        self.last_pose: Pose | None = None
+        self.poses: list[Pose] = []
+        self._last_seq = -1
+        self._last_frame_time = -np.inf
+        self._last_telemetry_time: dict[str, float] = {}
+        self._received_at: dict[int, float] = {}
+        self._frames: dict[int, ImageMessage] = {}
+
+    # --- link ---------------------------------------------------------------------------------
+
+    def attach(self, send: Callable[[str], None]) -> None:
+        self.send = send
+        self.connected = True
+        self.store.update_session(self.id, status="live", ended_at=None)
+
+    def detach(self, clean: bool) -> None:
+        """The link closed: after ``bye`` the session has ended, otherwise it is interrupted."""
+        self.send = None
+        self.connected = False
+        self.store.update_session(self.id, status="ended" if clean else "interrupted", ended_at=time.time(), **self._count_columns())
+        self.event(
+            "info" if clean else "warning",
+            "ended" if clean else "interrupted",
+            "session ended by the mobile station" if clean else "link lost: session interrupted (resume it by reconnecting)",
+        )
+
+    def reply(self, message) -> None:
+        if self.send is not None:
+            self.send(encode(message))
+
+    def event(self, level: str, code: str, text: str) -> None:
+        row = self.store.log_event(self.id, level, code, text)
+        self.station.on_event(self, row)
+
+    def refuse(self, error: ProtocolError) -> None:
+        """Tell the client, log the event; the session goes on."""
+        self.counters.errors += 1
+        self.reply(Error(code=error.code, message=error.message, seq=error.seq))
+        self.event("error", error.code, error.message if error.seq is None else f"frame {error.seq}: {error.message}")
+
+    # --- incoming -----------------------------------------------------------------------------
+
+    def on_text(self, text: str, now: float) -> None:
+        try:
+            message = decode_text(text)
+        except ProtocolError as exc:
+            self.recording.text(text[:4096], now)  # kept (truncated) as evidence
+            self.refuse(exc)
+            return
+        if not isinstance(message, Telemetry):  # telemetry is recorded once its order is checked
+            self.recording.text(text, now)
+        try:
+            self._dispatch(message, text, now)
+        except ProtocolError as exc:
+            self.refuse(exc)
+
+    def _dispatch(self, message, text: str, now: float) -> None:
+        if isinstance(message, Telemetry):
+            self._telemetry(message, text, now)
+        elif isinstance(message, Config):
+            self._config(message, now)
+        elif isinstance(message, Enable):
+            self.set_estimating(message.enabled, "mobile station")
+        elif isinstance(message, Log):
+            self.event(message.level if message.level != "debug" else "info", "mobile_log", message.text)
+        elif isinstance(message, Bye):
+            self.ended = True
+        elif isinstance(message, Error):
+            self.event("warning", "mobile_error", f"{message.code}: {message.message}")
+        elif message.type == "hello":
+            raise ProtocolError("malformed", "hello is only valid as the first message of a connection")
+        else:
+            raise ProtocolError("unknown_type", f"'{message.type}' is sent by the station, not to it")
+
+    def _telemetry(self, message, text: str, now: float) -> None:
+        last = self._last_telemetry_time.get(message.kind, -np.inf)
+        if message.timestamp < last:
+            self.recording.text(text, now)
+            raise ProtocolError("out_of_order", f"{message.kind} telemetry at t={message.timestamp!r} is older than the last one (t={last!r})")
+        self._last_telemetry_time[message.kind] = message.timestamp
+        self.recording.telemetry(message, text, now)
+        data = message.model_dump(exclude={"type", "kind", "timestamp"})
+        self.store.insert("telemetry", session_id=self.id, kind=message.kind, timestamp=message.timestamp, received_at=now, data_json=json.dumps(data))
+
+    def _config(self, message: Config, now: float) -> None:
+        self.store.insert("settings", session_id=self.id, t=now, source="mobile", data_json=encode(message))
+        if message.camera is None or message.camera == self.camera:
+            return
+        camera = CameraModel(**message.camera.model_dump(), name=self.device or "mobile")
+        self.recording.camera(camera, now)
+        self.camera = message.camera
+        self.store.update_session(self.id, camera_json=message.camera.model_dump_json())
+        self.event("info", "config", f"camera {camera.width}x{camera.height} fx={camera.fx:.1f} fy={camera.fy:.1f} cx={camera.cx:.1f} cy={camera.cy:.1f}")
+        self.restart_estimator()
+
+    def on_binary(self, data: bytes, now: float) -> None:
+        try:
+            message = decode_image(data)
+        except ProtocolError as exc:
+            self.refuse(exc)
+            return
+        self.recording.image(message, now)
+        self.counters.frames_received += 1
+        try:
+            self._check_frame(message)
+        except ProtocolError as exc:
+            self._frame_row(message, now, estimated=False)
+            self.refuse(exc)
+            return
+        self._last_seq, self._last_frame_time = message.seq, message.timestamp
+        if self.camera is None or not self.estimating or self.worker is None:
+            self._frame_row(message, now, estimated=False)
+            self._drop(message, "not_configured" if self.camera is None else "estimation_off")
+            return
+        self._received_at[message.seq] = now
+        self._frames[message.seq] = message
+        self.worker.submit(message)
+
+    def _check_frame(self, message: ImageMessage) -> None:
+        if message.seq <= self._last_seq:
+            raise ProtocolError("out_of_order", f"sequence number {message.seq} after {self._last_seq}", message.seq)
+        if message.timestamp <= self._last_frame_time:
+            raise ProtocolError("out_of_order", f"timestamp {message.timestamp!r} is not after the previous frame's {self._last_frame_time!r}", message.seq)
+        if self.camera is not None and (message.width, message.height) != (self.camera.width, self.camera.height):
+            raise ProtocolError(
+                "malformed", f"image is {message.width}x{message.height}, the configured camera is {self.camera.width}x{self.camera.height}", message.seq
+            )
+
+    def _frame_row(self, message: ImageMessage, received_at: float, estimated: bool) -> None:
+        self.store.insert(
+            "frames",
+            session_id=self.id,
+            seq=message.seq,
+            timestamp=message.timestamp,
+            received_at=received_at,
+            encoding=message.encoding,
+            width=message.width,
+            height=message.height,
+            size_bytes=len(message.payload),
+            estimated=estimated,
+        )
+
+    def _drop(self, message: ImageMessage, reason: str) -> None:
+        self.counters.frames_dropped += 1
+        self.reply(Dropped(seq=message.seq, reason=reason))
+
+    # --- estimator ----------------------------------------------------------------------------
+
+    def restart_estimator(self) -> None:
+        """A fresh estimator (new map) for the current camera; the old one finishes in the background."""
+        import asyncio
+
+        old, self.worker = self.worker, None
+        if old is not None:
+            asyncio.get_running_loop().create_task(old.close())
+        if self.camera is None:
+            return
+        settings_json = self.station.settings_json()
+        self.store.insert("settings", session_id=self.id, t=time.time(), source="server", data_json=settings_json)
+        events = WorkerEvents(self._worker_ready, self._worker_pose, self._worker_error, self._worker_dropped, self._worker_exit)
+        self.worker = EstimatorWorker(self.camera, settings_json, events)
+        self.station.on_new_map(self)
+        self.reply(Status(state="starting", estimating=self.estimating, message="estimator starting"))
+
+    def set_estimating(self, enabled: bool, by: str) -> None:
+        if enabled == self.estimating:
+            return
+        self.estimating = enabled
+        self.event("info", "enable" if enabled else "disable", f"estimation {'enabled' if enabled else 'disabled'} by the {by}")
+        self.reply(Enable(enabled=enabled))
+        self.station.on_status(self)
+
+    def _worker_ready(self) -> None:
+        self.event("info", "estimator_ready", "estimator ready")
+        self.reply(self.status())
+        self.station.on_status(self)
+
+    def _worker_pose(self, pose: Pose) -> None:
+        now = time.time()
+        message = self._frames.pop(pose.seq)
+        received_at = self._received_at.pop(pose.seq)
+        latency_ms = (now - received_at) * 1000.0
+        self._frame_row(message, received_at, estimated=True)
+        self.counters.frames_estimated += 1
+        self.counters.poses_sent += 1
+        self.counters.latencies_ms.append(latency_ms)
+        self.counters.estimated_times.append(now)
+        self.last_pose = pose
+        self.poses.append(pose)
+        self.reply(pose)
+        self.recording.pose(pose, now)
+        t, q = pose.t, pose.q
+        self.store.insert(
+            "poses", session_id=self.id, seq=pose.seq, timestamp=pose.timestamp, tx=t[0], ty=t[1], tz=t[2], qw=q[0], qx=q[1], qy=q[2], qz=q[3],
+            state=pose.state, quality=pose.quality, reset_counter=pose.reset_counter, processing_ms=pose.processing_ms, latency_ms=latency_ms,
+        )  # fmt: skip
+        self.station.on_pose(self, pose, latency_ms)
+
+    def _worker_error(self, code: str, text: str, seq: int | None) -> None:
+        if seq is not None and seq in self._frames:
+            self._frame_row(self._frames.pop(seq), self._received_at.pop(seq), estimated=False)
+        self.refuse(ProtocolError(code, text, seq))
+
+    def _worker_dropped(self, message: ImageMessage) -> None:
+        self._frame_row(self._frames.pop(message.seq), self._received_at.pop(message.seq), estimated=False)
+        self._drop(message, "stale")
+
+    def _worker_exit(self, reason: str) -> None:
+        self.worker = None
+        self.event("error", "internal", f"{reason}; send a config to start a new one")
+        for seq in list(self._frames):
+            self._frame_row(self._frames.pop(seq), self._received_at.pop(seq), estimated=False)
+
+    # --- status -------------------------------------------------------------------------------
+
+    def status(self) -> Status:
+        if self.camera is None:
+            state = "waiting_config"
+        elif self.worker is None or not self.worker.ready:
+            state = "starting"
+        else:
+            state = "running" if self.estimating else "stopped"
+        c = self.counters
+        return Status(
+            state=state,
+            estimating=self.estimating,
+            frames_received=c.frames_received,
+            frames_estimated=c.frames_estimated,
+            frames_dropped=c.frames_dropped,
+            fps=round(c.fps(time.time()), 2),
+            latency_ms_p50=round(c.latency_p50(), 2),
+        )
+
+    def _count_columns(self) -> dict:
+        c = self.counters
+        return {"frames_received": c.frames_received, "frames_estimated": c.frames_estimated, "frames_dropped": c.frames_dropped}
+
+    async def close(self, status: str) -> None:
+        """Finish the estimator (frames in flight get their poses recorded) and the recording."""
+        if self.worker is not None:
+            await self.worker.close()
+            self.worker = None
+        self.recording.close()
+        self.store.update_session(self.id, status=status, ended_at=time.time(), **self._count_columns())

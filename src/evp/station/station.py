@@ -1,0 +1,209 @@
+"""The base station's state: settings, sessions, operators, recording store and MAVLink output.
+
+The web layer (``evp.station.server``) only translates HTTP and WebSocket traffic into calls here.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hmac
+import json
+import logging
+import time
+from pathlib import Path
+
+from evp import __version__
+from evp.config import Settings
+from evp.station.protocol import PROTOCOL_VERSION, CameraConfig, Config, Hello, OrbConfig, Pose, ProtocolError
+from evp.station.recording import has_summary, repair
+from evp.station.session import LiveSession
+from evp.station.store import SessionStore
+
+log = logging.getLogger("evp.station")
+
+
+def default_camera(settings: Settings) -> CameraConfig:
+    """The camera the operator starts from: the settings' calibration, else seed 000's phone."""
+    from evp.calib.camera_files import read_camera
+    from evp.calib.profiles import load_profile
+
+    if settings.camera.calibration_file is not None:
+        camera = read_camera(settings.camera.calibration_file)
+    else:
+        camera = load_profile(settings.camera.profile or "nexus5x_640x380")
+    fields = ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+    return CameraConfig(**{f: getattr(camera, f) for f in fields})
+
+
+class Station:
+    def __init__(self, data_dir: Path, settings: Settings, db_url: str | None = None, token: str = "", mavlink_url: str | None = None):
+        self.data_dir = Path(data_dir)
+        self.data_dir.mkdir(parents=True, exist_ok=True)
+        self.settings = settings
+        self.camera = default_camera(settings)
+        self.token = token
+        self.store = SessionStore(db_url or f"sqlite:///{(self.data_dir / 'evp.sqlite').resolve()}")
+        self.sessions: dict[str, LiveSession] = {}
+        self.operators: set[asyncio.Queue] = set()
+        self.link: dict = {}
+        self.mavlink = None
+        self.mavlink_url = mavlink_url
+        self._mavlink_session: str | None = None
+        self._generations: dict[str, int] = {}
+        self._status_task: asyncio.Task | None = None
+
+    # --- lifecycle ------------------------------------------------------------------------------
+
+    async def start(self) -> None:
+        """Recover what a station that stopped abruptly left behind, then start the outputs."""
+        for session_id in self.store.mark_live_sessions_interrupted():
+            self.store.log_event(session_id, "warning", "interrupted", "the station stopped during this session")
+        for row in self.store.list_sessions(limit=100000):
+            path = Path(row["mcap_path"] or "")
+            leftover = path.with_suffix(".mcap.old")
+            if leftover.exists() and not path.exists():
+                leftover.replace(path)
+            if path.is_file() and not has_summary(path):
+                kept = await asyncio.to_thread(repair, path)
+                self.store.log_event(row["id"], "warning", "recording_repaired", f"{path.name}: closed after an abrupt stop ({kept} messages kept)")
+        if self.mavlink_url:
+            from evp.station.mavlink_out import MavlinkOutput
+
+            self.mavlink = MavlinkOutput(self.mavlink_url, self.settings.mavlink)
+        self._status_task = asyncio.get_running_loop().create_task(self._status_loop())
+        self.store.log_event(None, "info", "started", f"station {__version__} started, data in {self.data_dir}")
+
+    async def stop(self) -> None:
+        if self._status_task is not None:
+            self._status_task.cancel()
+        for session in list(self.sessions.values()):
+            await session.close("ended" if session.ended else "interrupted")
+        self.sessions.clear()
+        if self.mavlink is not None:
+            self.mavlink.close()
+        self.store.log_event(None, "info", "stopped", "station stopped")
+        self.store.close()
+
+    # --- mobile stations ------------------------------------------------------------------------
+
+    def check_hello(self, hello: Hello) -> None:
+        if hello.protocol != PROTOCOL_VERSION:
+            raise ProtocolError("bad_version", f"client speaks protocol {hello.protocol}, this station speaks {PROTOCOL_VERSION}")
+        if self.token and not hmac.compare_digest(hello.token.encode(), self.token.encode()):
+            raise ProtocolError("bad_token", "missing or wrong token" if hello.token else "this station needs a token (hello.token)")
+
+    def open_session(self, hello: Hello) -> tuple[LiveSession, bool]:
+        """A new session, or the one ``hello.resume`` names (kept in memory or reopened from disk)."""
+        if hello.resume:
+            session = self.sessions.get(hello.resume)
+            if session is None:
+                row = self.store.session(hello.resume)
+                if row is None:
+                    raise ProtocolError("unknown_session", f"no session {hello.resume!r} to resume")
+                session = LiveSession(row["id"], row["device"], self.store, Path(row["mcap_path"]), self, self.settings.station.estimate_on_connect)
+                self.sessions[session.id] = session
+            if session.connected:
+                raise ProtocolError("not_ready", f"session {hello.resume} is already connected")
+            session.event("info", "resumed", f"session resumed by {hello.device or 'a mobile station'}")
+            return session, True
+        recordings = self.data_dir / "sessions"
+        session_id = self.store.create_session(hello.device, "")
+        path = recordings / f"{session_id}.mcap"
+        self.store.update_session(session_id, mcap_path=str(path.resolve()))
+        session = LiveSession(session_id, hello.device, self.store, path, self, self.settings.station.estimate_on_connect)
+        self.sessions[session_id] = session
+        session.event("info", "connected", f"mobile station {hello.device or '(unnamed)'} connected")
+        return session, False
+
+    async def end_session(self, session: LiveSession) -> None:
+        await session.close("ended")
+        self.sessions.pop(session.id, None)
+        self.broadcast({"type": "sessions"})
+
+    def config_for_mobile(self) -> Config:
+        """What the operator's settings ask of a phone (camera, rate, colour, encoding, ORB)."""
+        s = self.settings
+        return Config(
+            camera=self.camera,
+            fps=s.camera.fps,
+            color_space=s.camera.color_space,
+            encoding=s.station.encoding,
+            jpeg_quality=s.station.jpeg_quality,
+            orb=OrbConfig(**s.orb.model_dump()),
+        )
+
+    def configure(self, orb: dict | None, camera: dict | None, fps: float | None, color_space: str | None) -> Config:
+        """The operator's 'Configure': validate, store, and push to every connected phone."""
+        data = self.settings.model_dump()
+        if orb:
+            data["orb"].update(orb)
+        if fps is not None:
+            data["camera"]["fps"] = fps
+        if color_space is not None:
+            data["camera"]["color_space"] = color_space
+        settings = Settings.model_validate(data)  # raises ValidationError before anything changes
+        new_camera = CameraConfig(**camera) if camera else self.camera
+        self.settings, self.camera = settings, new_camera
+        config = self.config_for_mobile()
+        self.store.insert("settings", session_id=None, t=time.time(), source="operator", data_json=config.model_dump_json())
+        for session in self.sessions.values():
+            session.reply(config)
+        self.store.log_event(None, "info", "configure", "settings stored and sent to the mobile stations")
+        self.broadcast({"type": "config", "config": config.model_dump()})
+        return config
+
+    # --- StationHooks -------------------------------------------------------------------------
+
+    def settings_json(self) -> str:
+        return self.settings.model_dump_json()
+
+    def on_pose(self, session: LiveSession, pose: Pose, latency_ms: float) -> None:
+        self.broadcast({"type": "pose", "session_id": session.id, "pose": pose.model_dump(), "latency_ms": latency_ms})
+        if self.mavlink is not None and (self._mavlink_session in (None, session.id) or self._mavlink_session not in self.sessions):
+            import numpy as np
+            from scipy.spatial.transform import Rotation
+
+            self._mavlink_session = session.id
+            T = np.eye(4)
+            w, x, y, z = pose.q
+            T[:3, :3] = Rotation.from_quat([x, y, z, w]).as_matrix()
+            T[:3, 3] = pose.t
+            generation = self._generations.get(session.id, 0)
+            self.mavlink.update(T, pose.timestamp, pose.state, pose.quality, generation + pose.reset_counter)
+
+    def on_event(self, session: LiveSession | None, event: dict) -> None:
+        self.broadcast({"type": "event", "event": event})
+
+    def on_status(self, session: LiveSession) -> None:
+        self.broadcast({"type": "status", "session_id": session.id, "status": session.status().model_dump(), "connected": session.connected})
+
+    def on_new_map(self, session: LiveSession) -> None:
+        """A new estimator for a session: its poses start a new frame (MAVLink reset_counter)."""
+        self._generations[session.id] = self._generations.get(session.id, 0) + 1
+
+    # --- operators ----------------------------------------------------------------------------
+
+    def broadcast(self, message: dict) -> None:
+        text = json.dumps(message)
+        for outbox in self.operators:
+            if outbox.qsize() < 1000:  # an operator page that stopped reading is not buffered forever
+                outbox.put_nowait(text)
+
+    def snapshot(self) -> dict:
+        return {
+            "type": "snapshot",
+            "config": self.config_for_mobile().model_dump(),
+            "link": self.link,
+            "data_dir": str(self.data_dir.resolve()),
+            "db": self.store.engine.url.render_as_string(hide_password=True),
+            "mavlink": self.mavlink_url,
+            "live": {sid: {"status": s.status().model_dump(), "connected": s.connected, "device": s.device} for sid, s in self.sessions.items()},
+        }
+
+    async def _status_loop(self) -> None:
+        while True:
+            await asyncio.sleep(1.0)
+            for session in list(self.sessions.values()):
+                if session.connected:
+                    session.reply(session.status())
+                self.on_status(session)

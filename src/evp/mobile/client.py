@@ -124,6 +124,7 @@ class StreamClient:
         self._answered = asyncio.Event()
         self._ready = asyncio.Event()
         self._in_flight: set[int] = set()
+        self._first_seq = 0
 
     async def _connect(self):
         import websockets
@@ -163,6 +164,7 @@ class StreamClient:
             if not isinstance(welcome, Welcome):
                 raise StreamError(f"expected welcome, got {welcome.type}")
             self.report.session_id = welcome.session_id
+            self._first_seq = welcome.next_seq  # a resumed session continues its numbering
             receiver = asyncio.create_task(self._receive(connection))
             fields = ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
             camera = CameraConfig(**{f: getattr(source.camera, f) for f in fields})
@@ -199,7 +201,7 @@ class StreamClient:
                     await asyncio.wait([receiver, asyncio.create_task(self._answered.wait())], return_when=asyncio.FIRST_COMPLETED)
                     if receiver.done():
                         break
-                message = await asyncio.to_thread(encode_image, item.image, item.index, item.timestamp, encoding, jpeg_quality)
+                message = await asyncio.to_thread(encode_image, item.image, self._first_seq + self.report.frames_sent, item.timestamp, encoding, jpeg_quality)
                 self._in_flight.add(message.seq)
                 self.report.sent_at[message.seq] = time.monotonic()
                 await connection.send(message.pack())

@@ -51,7 +51,10 @@ def worker_main(connection, camera: dict, settings_json: str) -> None:
     estimator = make_estimator(CameraModel(**camera, name="mobile"), settings)
     connection.send(("ready", None))
     while True:
-        item = connection.recv()
+        try:
+            item = connection.recv()
+        except EOFError:  # the station is gone
+            return
         if item is None:
             if hasattr(estimator, "finish"):
                 estimator.finish()

@@ -67,6 +67,7 @@ class Welcome(_Message):
     protocol: int = PROTOCOL_VERSION
     session_id: str
     resumed: bool = False
+    next_seq: int = Field(0, description="first image sequence number the station accepts (continues a resumed session)")
     server: str = ""
 
 

@@ -77,7 +77,7 @@ async def mobile_endpoint(websocket: WebSocket) -> None:
         return
     outbox: asyncio.Queue = asyncio.Queue()
     sender = asyncio.create_task(_sender(websocket, outbox))
-    outbox.put_nowait(encode(Welcome(session_id=session.id, resumed=resumed, server=f"evp {__version__}")))
+    outbox.put_nowait(encode(Welcome(session_id=session.id, resumed=resumed, next_seq=session.next_seq, server=f"evp {__version__}")))
     session.attach(outbox.put_nowait)
     session.reply(station.config_for_mobile())
     if session.worker is not None or session.camera is not None:

@@ -93,6 +93,18 @@ class LiveSession:
 
     # --- link ---------------------------------------------------------------------------------
 
+    @property
+    def next_seq(self) -> int:
+        return self._last_seq + 1
+
+    def continue_from(self, frames: list[dict]) -> None:
+        """Sequence and time order carried over from the recorded frames (resumed after a restart)."""
+        if frames:
+            self._last_seq = max(r["seq"] for r in frames)
+            self._last_frame_time = max(r["timestamp"] for r in frames)
+            self.counters.frames_received = len(frames)
+            self.counters.frames_estimated = sum(1 for r in frames if r["estimated"])
+
     def attach(self, send: Callable[[str], None]) -> None:
         self.send = send
         self.connected = True

@@ -101,6 +101,7 @@ class Station:
                 if row is None:
                     raise ProtocolError("unknown_session", f"no session {hello.resume!r} to resume")
                 session = LiveSession(row["id"], row["device"], self.store, Path(row["mcap_path"]), self, self.settings.station.estimate_on_connect)
+                session.continue_from(self.store.rows("frames", session.id))
                 self.sessions[session.id] = session
             if session.connected:
                 raise ProtocolError("not_ready", f"session {hello.resume} is already connected")

@@ -1,0 +1,199 @@
+"""Bad input and faults: each gets a specific error, is logged, and the session goes on; a client
+killed mid-stream leaves an interrupted, durable session that a reconnect resumes; a killed
+station loses nothing it recorded."""
+
+from __future__ import annotations
+
+import asyncio
+import signal
+import time
+
+import pytest
+import websockets
+
+from evp.io.registry import open_dataset
+from evp.station.protocol import PROTOCOL_VERSION, CameraConfig, Config, Hello, ImageMessage, decode_text, encode, encode_image
+from evp.station.recording import decoded_messages, has_summary
+from evp.station.store import SessionStore
+from tests.conftest import SAMPLE
+from tests.station.conftest import insecure_tls, running_station
+
+TOKEN = "s3cret"
+
+
+@pytest.fixture(scope="module")
+def frames():
+    dataset = open_dataset(SAMPLE)
+    fields = ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+    camera = CameraConfig(**{f: getattr(dataset.camera, f) for f in fields})
+    return camera, list(dataset.frames())[:12]
+
+
+async def _connect(url: str):
+    return await websockets.connect(f"{url}/ws/mobile", ssl=insecure_tls(), max_size=2**25)
+
+
+async def _until(connection, wanted: str, timeout: float = 60.0):
+    """Messages until one of type ``wanted``; returns (that message, everything before it)."""
+    seen = []
+    deadline = time.monotonic() + timeout
+    while True:
+        message = decode_text(await asyncio.wait_for(connection.recv(), max(0.1, deadline - time.monotonic())))
+        if message.type == wanted:
+            return message, seen
+        seen.append(message)
+
+
+async def _open_session(url: str, camera: CameraConfig, resume: str | None = None):
+    connection = await _connect(url)
+    await connection.send(encode(Hello(protocol=PROTOCOL_VERSION, token=TOKEN, device="test", resume=resume)))
+    welcome, _ = await _until(connection, "welcome")
+    await connection.send(encode(Config(camera=camera)))
+    while (await _until(connection, "status"))[0].state != "running":
+        pass
+    return connection, welcome
+
+
+async def _refused(url: str, first) -> tuple[str, str]:
+    connection = await _connect(url)
+    await connection.send(first)
+    error, _ = await _until(connection, "error", 20)
+    await connection.close()
+    return error.code, error.message
+
+
+def _store(data) -> SessionStore:
+    return SessionStore(f"sqlite:///{data / 'evp.sqlite'}")
+
+
+def test_bad_messages_get_specific_errors_and_the_session_goes_on(station_data, frames):
+    camera, images = frames
+
+    async def scenario(url: str) -> tuple[str, list[str]]:
+        hello = lambda **kw: encode(Hello(**{"protocol": PROTOCOL_VERSION, "token": TOKEN, **kw}))  # noqa: E731
+        assert (await _refused(url, hello(token="wrong")))[0] == "bad_token"
+        assert (await _refused(url, hello(token="")))[0] == "bad_token"
+        assert (await _refused(url, hello(protocol=99)))[0] == "bad_version"
+        assert (await _refused(url, b"\x00\x01"))[0] == "not_ready"
+        assert (await _refused(url, hello(resume="no-such-session")))[0] == "unknown_session"
+
+        connection, welcome = await _open_session(url, camera)
+        first = encode_image(images[0].image, 0, images[0].timestamp, "png")
+        await connection.send(first.pack())
+        await _until(connection, "pose")
+        bad = [
+            ("{oops", "malformed"),
+            ('{"type": "warp"}', "unknown_type"),
+            ('{"type": "log", "text": "' + "x" * 70000 + '"}', "oversized"),
+            ('{"type": "telemetry", "kind": "imu", "timestamp": 5, "gyro_rad_s": [0, 0, 0], "accel_m_s2": [0, 0, 9.8]}', None),
+            ('{"type": "telemetry", "kind": "imu", "timestamp": 4, "gyro_rad_s": [0, 0, 0], "accel_m_s2": [0, 0, 9.8]}', "out_of_order"),
+            ('{"type": "pose", "seq": 1, "timestamp": 1, "t": [0, 0, 0], "q": [1, 0, 0, 0], "state": "OK"}', "unknown_type"),
+        ]
+        for text, code in bad:
+            await connection.send(text)
+            if code is not None:
+                error, _ = await _until(connection, "error")
+                assert error.code == code, (text[:40], error)
+        corrupt = ImageMessage(1, images[1].timestamp, "jpeg", camera.width, camera.height, b"\xff\xd8" + bytes(range(256)) * 40)
+        await connection.send(corrupt.pack())
+        error, _ = await _until(connection, "error")
+        assert (error.code, error.seq) in (("corrupt_image", 1),)
+        await connection.send(encode_image(images[2].image, 1, images[2].timestamp, "png").pack())  # seq repeats
+        error, _ = await _until(connection, "error")
+        assert error.code == "out_of_order"
+        await connection.send(encode_image(images[2].image[:100], 3, images[2].timestamp, "png").pack())
+        error, _ = await _until(connection, "error")
+        assert error.code == "malformed" and "configured camera" in error.message
+        await connection.send(encode_image(images[3].image, 4, images[3].timestamp, "png").pack())
+        pose, _ = await _until(connection, "pose")  # the session went on
+        assert pose.seq == 4
+        await connection.send('{"type": "bye"}')
+        await connection.close()
+        return welcome.session_id, [code for _, code in bad if code]
+
+    with running_station(station_data, "--token", TOKEN) as station:
+        session_id, codes = asyncio.run(scenario(station.url))
+        time.sleep(0.5)
+    store = _store(station_data)
+    try:
+        logged = [e["code"] for e in store.rows("events", session_id)]
+        for code in [*codes, "corrupt_image", "out_of_order"]:
+            assert code in logged
+        refused = [e["code"] for e in store.recent_events(100) if e["session_id"] is None]
+        assert {"bad_token", "bad_version", "not_ready", "unknown_session"} <= set(refused)
+        rows = store.rows("frames", session_id)
+        assert len(rows) == 5  # every image that parsed is recorded, estimated or not
+        assert [r["estimated"] for r in sorted(rows, key=lambda r: r["id"])].count(True) == 2
+    finally:
+        store.close()
+
+
+def test_killed_client_leaves_an_interrupted_session_that_resumes(station_data, frames):
+    camera, images = frames
+
+    async def first_link(url: str) -> str:
+        connection, welcome = await _open_session(url, camera)
+        for seq, frame in enumerate(images[:5]):
+            await connection.send(encode_image(frame.image, seq, frame.timestamp, "png").pack())
+            await _until(connection, "pose")
+        connection.transport.abort()  # the phone dies: no close handshake
+        return welcome.session_id
+
+    async def second_link(url: str, session_id: str) -> None:
+        connection, welcome = await _open_session(url, camera, resume=session_id)
+        assert welcome.resumed and welcome.session_id == session_id and welcome.next_seq == 5
+        for seq, frame in enumerate(images[5:9], start=welcome.next_seq):
+            await connection.send(encode_image(frame.image, seq, frame.timestamp, "png").pack())
+            await _until(connection, "pose")
+        await connection.send('{"type": "bye"}')
+        await connection.close()
+
+    with running_station(station_data, "--token", TOKEN) as station:
+        session_id = asyncio.run(first_link(station.url))
+        store = _store(station_data)
+        deadline = time.monotonic() + 20
+        while store.session(session_id)["status"] != "interrupted":
+            assert time.monotonic() < deadline, "the session was not marked interrupted"
+            time.sleep(0.2)
+        assert len(store.rows("frames", session_id)) == 5 and len(store.rows("poses", session_id)) == 5
+        asyncio.run(second_link(station.url, session_id))
+        time.sleep(0.5)
+    try:
+        session = store.session(session_id)
+        assert session["status"] == "ended"
+        assert len(store.rows("frames", session_id)) == 9 and len(store.rows("poses", session_id)) == 9
+        assert "resumed" in [e["code"] for e in store.rows("events", session_id)]
+        images_recorded = sum(1 for topic, _, _ in decoded_messages(session["mcap_path"]) if topic.startswith("/camera/image"))
+        assert images_recorded == 9
+    finally:
+        store.close()
+
+
+def test_killed_station_loses_nothing_it_recorded(station_data, frames):
+    camera, images = frames
+
+    async def stream(url: str) -> str:
+        connection, welcome = await _open_session(url, camera)
+        for seq, frame in enumerate(images[:6]):
+            await connection.send(encode_image(frame.image, seq, frame.timestamp, "png").pack())
+            await _until(connection, "pose")
+        return welcome.session_id
+
+    with running_station(station_data, "--token", TOKEN) as station:
+        session_id = asyncio.run(stream(station.url))
+        time.sleep(0.5)  # the database writer commits what it has queued
+        station.stop(signal.SIGKILL)
+        mcap = next((station_data / "sessions").glob("*.mcap"))
+        assert not has_summary(mcap)
+    with running_station(station_data, "--token", TOKEN):
+        time.sleep(1.0)  # start-up recovery
+    store = _store(station_data)
+    try:
+        session = store.session(session_id)
+        assert session["status"] == "interrupted"
+        assert len(store.rows("frames", session_id)) == 6 and len(store.rows("poses", session_id)) == 6
+        assert has_summary(mcap)
+        assert sum(1 for topic, _, _ in decoded_messages(mcap) if topic == "/camera/image/compressed") == 6
+        assert "recording_repaired" in [e["code"] for e in store.rows("events", session_id)]
+    finally:
+        store.close()

@@ -114,7 +114,7 @@ class LiveSession:
         """The link closed: after ``bye`` the session has ended, otherwise it is interrupted."""
         self.send = None
         self.connected = False
-        self.store.update_session(self.id, status="ended" if clean else "interrupted", ended_at=time.time(), **self._count_columns())
+        self.store.update_session(self.id, status="ended" if clean else "interrupted", ended_at=time.time(), **self.count_columns())
         self.event(
             "info" if clean else "warning",
             "ended" if clean else "interrupted",
@@ -328,7 +328,7 @@ class LiveSession:
             latency_ms_p50=round(c.latency_p50(), 2),
         )
 
-    def _count_columns(self) -> dict:
+    def count_columns(self) -> dict:
         c = self.counters
         return {"frames_received": c.frames_received, "frames_estimated": c.frames_estimated, "frames_dropped": c.frames_dropped}
 
@@ -338,4 +338,4 @@ class LiveSession:
             await self.worker.close()
             self.worker = None
         self.recording.close()
-        self.store.update_session(self.id, status=status, ended_at=time.time(), **self._count_columns())
+        self.store.update_session(self.id, status=status, ended_at=time.time(), **self.count_columns())

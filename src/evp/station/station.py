@@ -149,7 +149,7 @@ class Station:
         self.store.insert("settings", session_id=None, t=time.time(), source="operator", data_json=config.model_dump_json())
         for session in self.sessions.values():
             session.reply(config)
-        self.store.log_event(None, "info", "configure", "settings stored and sent to the mobile stations")
+        self.on_event(None, self.store.log_event(None, "info", "configure", f"settings stored and sent to {len(self.sessions)} mobile station(s)"))
         self.broadcast({"type": "config", "config": config.model_dump()})
         return config
 
@@ -207,4 +207,5 @@ class Station:
             for session in list(self.sessions.values()):
                 if session.connected:
                     session.reply(session.status())
+                    self.store.update_session(session.id, **session.count_columns())
                 self.on_status(session)

@@ -1,0 +1,124 @@
+// Mobile station in the browser: camera (getUserMedia), IMU (DeviceMotion), GPS (Geolocation)
+// streamed to the station with protocol v1 (docs/protocol.md); shows the pose that comes back.
+"use strict";
+
+const $ = id => document.getElementById(id);
+const PROTOCOL = 1, ENCODING = { jpeg: 1, png: 2 };
+const phone = { socket: null, config: null, sessionId: null, nextSeq: 0, sent: 0, poses: 0, dropped: 0, imu: 0, gps: 0, stream: null, timer: null, lastPose: null };
+window.evpPhone = phone;
+
+function log(text) {
+  const line = document.createElement("div");
+  line.textContent = new Date().toLocaleTimeString() + " " + text;
+  $("log").prepend(line);
+}
+
+function send(message) {
+  if (phone.socket && phone.socket.readyState === WebSocket.OPEN) phone.socket.send(JSON.stringify(message));
+}
+
+function connect() {
+  const token = new URLSearchParams(location.search).get("token") || "";
+  const socket = phone.socket = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws/mobile");
+  socket.binaryType = "arraybuffer";
+  socket.onopen = () => {
+    $("link").textContent = "up";
+    send({ type: "hello", protocol: PROTOCOL, token, device: "browser " + navigator.platform, resume: phone.sessionId });
+  };
+  socket.onclose = () => { $("link").textContent = "down (reconnecting)"; setTimeout(connect, 1000); };
+  socket.onmessage = event => onMessage(JSON.parse(event.data));
+}
+
+function onMessage(message) {
+  switch (message.type) {
+    case "welcome": phone.sessionId = message.session_id; phone.nextSeq = message.next_seq; $("session").textContent = message.session_id; break;
+    case "config": phone.config = message; log(`config: ${message.camera.width}x${message.camera.height} at ${message.fps} fps, ${message.encoding}`); if (phone.stream) announce(); break;
+    case "pose": phone.poses++; phone.lastPose = message; showPose(message); break;
+    case "dropped": phone.dropped++; break;
+    case "enable": $("enable").checked = message.enabled; break;
+    case "status": break;
+    case "error": log(`station error ${message.code}: ${message.message}`); break;
+  }
+  $("poses").textContent = phone.poses; $("dropped").textContent = phone.dropped;
+}
+
+function showPose(p) {
+  const f = v => v.toFixed(3);
+  $("pose").textContent = `${p.state} t=(${p.t.map(f).join(", ")}) q=(${p.q.map(f).join(", ")}) quality ${p.quality}`;
+}
+
+// What this phone streams: the station's camera, at the station's resolution (the video is
+// scaled to it, so the station's intrinsics stay valid when the aspect ratio matches).
+function announce() {
+  const c = phone.config;
+  const track = phone.stream.getVideoTracks()[0].getSettings();
+  if (Math.abs(track.width / track.height - c.camera.width / c.camera.height) > 0.01)
+    log(`camera gives ${track.width}x${track.height}: stretched to ${c.camera.width}x${c.camera.height}, calibrate at that aspect`);
+  send({ type: "config", camera: c.camera, fps: c.fps, encoding: c.encoding === "png" ? "png" : "jpeg", color_space: "bgr" });
+  clearInterval(phone.timer);
+  phone.timer = setInterval(captureFrame, 1000 / c.fps);
+}
+
+function header(seq, timestamp, encoding, width, height, length) {
+  const view = new DataView(new ArrayBuffer(32));
+  [69, 86, 80, 73].forEach((b, i) => view.setUint8(i, b)); // "EVPI"
+  view.setUint8(4, PROTOCOL); view.setUint8(5, ENCODING[encoding]); view.setUint16(6, 0, true);
+  view.setUint32(8, seq, true); view.setUint16(12, width, true); view.setUint16(14, height, true);
+  view.setFloat64(16, timestamp, true); view.setUint32(24, length, true);
+  return view.buffer;
+}
+
+function captureFrame() {
+  const c = phone.config, video = $("preview"), canvas = $("frame");
+  if (!c || video.readyState < 2 || !phone.socket || phone.socket.readyState !== WebSocket.OPEN) return;
+  if (phone.socket.bufferedAmount > 1 << 20) return; // the link is behind: skip rather than queue
+  canvas.width = c.camera.width; canvas.height = c.camera.height;
+  canvas.getContext("2d").drawImage(video, 0, 0, canvas.width, canvas.height);
+  const timestamp = performance.now() / 1000, encoding = c.encoding === "png" ? "png" : "jpeg";
+  canvas.toBlob(async blob => {
+    const payload = await blob.arrayBuffer();
+    const seq = phone.nextSeq++;
+    const frame = new Uint8Array(32 + payload.byteLength);
+    frame.set(new Uint8Array(header(seq, timestamp, encoding, canvas.width, canvas.height, payload.byteLength)), 0);
+    frame.set(new Uint8Array(payload), 32);
+    phone.socket.send(frame.buffer);
+    phone.sent++; $("sent").textContent = phone.sent;
+  }, "image/" + encoding, (c.jpeg_quality || 85) / 100);
+}
+
+function startSensors() {
+  const deg = Math.PI / 180;
+  window.addEventListener("devicemotion", e => {
+    const r = e.rotationRate, a = e.accelerationIncludingGravity;
+    if (!r || !a || r.alpha === null || a.x === null) return;
+    // W3C: rotationRate in deg/s about the device z (alpha), x (beta), y (gamma) axes
+    send({ type: "telemetry", kind: "imu", timestamp: performance.now() / 1000, gyro_rad_s: [r.beta * deg, r.gamma * deg, r.alpha * deg], accel_m_s2: [a.x, a.y, a.z] });
+    $("imu").textContent = ++phone.imu;
+  });
+  if (navigator.geolocation) navigator.geolocation.watchPosition(p => {
+    const c = p.coords;
+    send({ type: "telemetry", kind: "gps", timestamp: performance.now() / 1000, latitude_deg: c.latitude, longitude_deg: c.longitude,
+      altitude_m: c.altitude ?? 0, horizontal_accuracy_m: c.accuracy ?? undefined, vertical_accuracy_m: c.altitudeAccuracy ?? undefined });
+    $("gps").textContent = ++phone.gps;
+  }, error => log("GPS: " + error.message), { enableHighAccuracy: true });
+}
+
+async function start() {
+  if (typeof DeviceMotionEvent !== "undefined" && DeviceMotionEvent.requestPermission) {
+    try { await DeviceMotionEvent.requestPermission(); } catch (error) { log("motion sensors: " + error); } // iOS asks on a tap
+  }
+  const c = phone.config;
+  if (!c) { log("no configuration from the station yet"); return; }
+  try {
+    phone.stream = await navigator.mediaDevices.getUserMedia({ audio: false, video: {
+      facingMode: "environment", width: { ideal: c.camera.width }, height: { ideal: c.camera.height }, frameRate: { ideal: c.fps } } });
+  } catch (error) { log("camera: " + error); return; }
+  $("preview").srcObject = phone.stream;
+  startSensors();
+  announce();
+  $("start").disabled = true;
+}
+
+$("start").onclick = start;
+$("enable").onchange = event => send({ type: "enable", enabled: event.target.checked });
+connect();

@@ -1,0 +1,88 @@
+"""The operator UI and the phone page in a real headless Chromium (Debian's), driven by Playwright.
+
+The phone page gets a fake camera playing a video made from the bundled sample and an overridden
+geolocation; the operator sets the sample's camera in the camera dialog, presses Configure, and
+must then see the trajectory and the event log. Screenshots land in test-artifacts/.
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from evp.io.registry import open_dataset
+from evp.station.store import SessionStore
+from tests.conftest import PROJECT, SAMPLE
+from tests.station.conftest import running_station
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+ARTIFACTS = PROJECT / "test-artifacts"
+
+
+def write_y4m(path: Path, images: list[np.ndarray], fps: int) -> None:
+    """A raw YUV 4:2:0 video, the format Chromium's fake camera plays."""
+    height, width = images[0].shape[:2]
+    with path.open("wb") as handle:
+        handle.write(f"YUV4MPEG2 W{width} H{height} F{fps}:1 Ip A1:1 C420jpeg\n".encode())
+        for image in images:
+            bgr = image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+            handle.write(b"FRAME\n" + cv2.cvtColor(bgr, cv2.COLOR_BGR2YUV_I420).tobytes())
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (scripts/test.sh installs it when it can)")
+def test_phone_page_streams_and_operator_sees_the_trajectory(tmp_path, station_data):
+    sync_api = pytest.importorskip("playwright.sync_api")
+    dataset = open_dataset(SAMPLE)
+    camera = dataset.camera
+    video = tmp_path / "sample.y4m"
+    write_y4m(video, [frame.image for frame in dataset.frames()], fps=25)
+    ARTIFACTS.mkdir(exist_ok=True)
+    args = ["--use-fake-ui-for-media-stream", "--use-fake-device-for-media-stream", f"--use-file-for-fake-video-capture={video}", "--no-sandbox"]
+    with running_station(station_data) as station, sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=args)
+        context = browser.new_context(ignore_https_errors=True, geolocation={"latitude": 3.3745, "longitude": -76.5331}, permissions=["geolocation"])
+        operator = context.new_page()
+        operator.goto(station.http + "/")
+        operator.wait_for_function("document.getElementById('st-link').textContent === 'up'")
+        operator.click("#camera-button")
+        form = "#camera-form"
+        for name in ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"):
+            operator.fill(f"{form} [name={name}]", str(getattr(camera, name)))
+        operator.fill(f"{form} [name=fps]", "25")
+        operator.click(f"{form} button[value=ok]")
+        operator.click("#configure")
+        operator.wait_for_function("document.getElementById('configure-result').textContent.startsWith('stored')")
+
+        phone = context.new_page()
+        phone.goto(station.http + "/phone")
+        phone.wait_for_function("window.evpPhone.config && window.evpPhone.config.camera.width === 240")
+        phone.click("#start")
+        phone.wait_for_function("window.evpPhone.poses >= 40 && window.evpPhone.gps >= 1", timeout=120_000)
+        operator.wait_for_function(
+            "(() => { const s = window.evp.selected; return s && (window.evp.trajectories[s] || []).filter(p => p.state === 'OK').length >= 10; })()",
+            timeout=60_000,
+        )
+        time.sleep(1.5)  # a status tick for the status bar
+        phone.screenshot(path=str(ARTIFACTS / "phone_page.png"), full_page=True)
+        operator.screenshot(path=str(ARTIFACTS / "operator_ui.png"), full_page=True)
+        log_text = operator.inner_text("#event-log")
+        assert "[connected]" in log_text and "[estimator_ready]" in log_text and "[configure]" in log_text
+        assert operator.inner_text("#st-comm") == "connected" and operator.inner_text("#st-state") == "running"
+        assert "OK" in operator.inner_text("#pose")
+        session_id = operator.evaluate("window.evp.selected")
+        phone.uncheck("#enable")
+        operator.wait_for_function("document.getElementById('st-state').textContent === 'stopped'", timeout=10_000)
+        browser.close()
+    store = SessionStore(f"sqlite:///{station_data / 'evp.sqlite'}")
+    try:
+        kinds = {row["kind"] for row in store.rows("telemetry", session_id)}
+        assert "gps" in kinds
+        assert "disable" in [e["code"] for e in store.rows("events", session_id)]
+        assert len(store.rows("poses", session_id)) >= 40
+    finally:
+        store.close()

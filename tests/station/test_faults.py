@@ -54,6 +54,13 @@ async def _open_session(url: str, camera: CameraConfig, resume: str | None = Non
     return connection, welcome
 
 
+async def _stream_until_posed(connection, images, first_seq: int) -> None:
+    """Send frames one at a time, each after the previous one's pose came back."""
+    for seq, frame in enumerate(images, start=first_seq):
+        await connection.send(encode_image(frame.image, seq, frame.timestamp, "png").pack())
+        await _until(connection, "pose")
+
+
 async def _refused(url: str, first) -> tuple[str, str]:
     connection = await _connect(url)
     await connection.send(first)
@@ -133,18 +140,14 @@ def test_killed_client_leaves_an_interrupted_session_that_resumes(station_data, 
 
     async def first_link(url: str) -> str:
         connection, welcome = await _open_session(url, camera)
-        for seq, frame in enumerate(images[:5]):
-            await connection.send(encode_image(frame.image, seq, frame.timestamp, "png").pack())
-            await _until(connection, "pose")
+        await _stream_until_posed(connection, images[:5], 0)
         connection.transport.abort()  # the phone dies: no close handshake
         return welcome.session_id
 
     async def second_link(url: str, session_id: str) -> None:
         connection, welcome = await _open_session(url, camera, resume=session_id)
         assert welcome.resumed and welcome.session_id == session_id and welcome.next_seq == 5
-        for seq, frame in enumerate(images[5:9], start=welcome.next_seq):
-            await connection.send(encode_image(frame.image, seq, frame.timestamp, "png").pack())
-            await _until(connection, "pose")
+        await _stream_until_posed(connection, images[5:9], welcome.next_seq)
         await connection.send('{"type": "bye"}')
         await connection.close()
 
@@ -174,9 +177,7 @@ def test_killed_station_loses_nothing_it_recorded(station_data, frames):
 
     async def stream(url: str) -> str:
         connection, welcome = await _open_session(url, camera)
-        for seq, frame in enumerate(images[:6]):
-            await connection.send(encode_image(frame.image, seq, frame.timestamp, "png").pack())
-            await _until(connection, "pose")
+        await _stream_until_posed(connection, images[:6], 0)
         return welcome.session_id
 
     with running_station(station_data, "--token", TOKEN) as station:

@@ -353,13 +353,13 @@ def camera(
     out: Path | None = typer.Option(None, "--out", help="Write it as OpenCV FileStorage YAML."),
 ) -> None:
     """Show a camera model from a file or a shipped profile (e.g. nexus5x_640x380); list profiles with 'list'."""
-    from evp.calib.camera_files import read_camera, write_opencv_yaml
-    from evp.calib.profiles import load_profile, profile_names
+    from evp.calib.camera_files import write_opencv_yaml
+    from evp.calib.profiles import camera_from, profile_names
 
     if source == "list":
         typer.echo("\n".join(profile_names()))
         return
-    model = read_camera(source) if Path(source).is_file() else load_profile(source)
+    model = camera_from(source)
     if width and height:
         model = model.scaled(width, height)
     typer.echo(

@@ -73,7 +73,9 @@ def test_phone_page_streams_and_operator_sees_the_trajectory(tmp_path, station_d
         log_text = operator.inner_text("#event-log")
         assert "[connected]" in log_text and "[estimator_ready]" in log_text and "[configure]" in log_text
         assert operator.inner_text("#st-comm") == "connected" and operator.inner_text("#st-state") == "running"
-        assert "OK" in operator.inner_text("#pose")
+        # the fake camera loops the clip, so tracking is lost and regained: wait for an OK pose on screen
+        operator.wait_for_function("/ OK /.test(document.getElementById('pose').textContent)", timeout=60_000)
+        assert " OK " in operator.inner_text("#pose")
         session_id = operator.evaluate("window.evp.selected")
         phone.uncheck("#enable")
         operator.wait_for_function("document.getElementById('st-state').textContent === 'stopped'", timeout=10_000)

@@ -24,9 +24,7 @@ TOKEN = "s3cret"
 @pytest.fixture(scope="module")
 def frames():
     dataset = open_dataset(SAMPLE)
-    fields = ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
-    camera = CameraConfig(**{f: getattr(dataset.camera, f) for f in fields})
-    return camera, list(dataset.frames())[:12]
+    return CameraConfig.from_camera(dataset.camera), list(dataset.frames())[:12]
 
 
 async def _connect(url: str):

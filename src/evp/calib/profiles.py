@@ -24,3 +24,8 @@ def load_profile(name: str) -> CameraModel:
     if not path.is_file():
         raise EvpError(f"unknown camera profile {name!r}; known: {', '.join(profile_names())}")
     return read_camera(path)
+
+
+def camera_from(spec: str) -> CameraModel:
+    """A calibration file when ``spec`` names one, else a shipped profile of that name."""
+    return read_camera(spec) if Path(spec).is_file() else load_profile(spec)

@@ -166,9 +166,8 @@ class StreamClient:
             self.report.session_id = welcome.session_id
             self._first_seq = welcome.next_seq  # a resumed session continues its numbering
             receiver = asyncio.create_task(self._receive(connection))
-            fields = ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
-            camera = CameraConfig(**{f: getattr(source.camera, f) for f in fields})
-            await connection.send(encode(Config(camera=camera, fps=source.fps, encoding=encoding if encoding != "raw" else "raw", color_space="bgr")))
+            camera = CameraConfig.from_camera(source.camera)
+            await connection.send(encode(Config(camera=camera, fps=source.fps, encoding=encoding, color_space="bgr")))
             try:
                 await asyncio.wait_for(self._ready.wait(), READY_TIMEOUT_S)
             except TimeoutError:
@@ -176,7 +175,6 @@ class StreamClient:
             await self._send_items(connection, source, realtime, encoding, jpeg_quality, max_in_flight, receiver)
             await self._drain(receiver)
             await connection.send(encode(Bye()))
-            await self._drain(receiver)
             receiver.cancel()
         finally:
             await connection.close()
@@ -186,21 +184,22 @@ class StreamClient:
     async def _send_items(
         self, connection, source: StreamSource, realtime: bool, encoding: str, jpeg_quality: int, max_in_flight: int, receiver: asyncio.Task
     ) -> None:
-        pace_start = None
+        pace_start: float | None = None
         for item in source.items:
             if receiver.done():
                 receiver.result()  # re-raises the link failure
                 raise StreamError("the station closed the connection")
             if realtime and not source.live:
                 now = time.monotonic()
-                pace_start = pace_start or (now - item.timestamp)
+                if pace_start is None:
+                    pace_start = now - item.timestamp
                 await asyncio.sleep(max(0.0, pace_start + item.timestamp - now))
             if isinstance(item, Frame):
-                while not realtime and len(self._in_flight) >= max_in_flight:
+                while not realtime and len(self._in_flight) >= max_in_flight and not receiver.done():
                     self._answered.clear()
-                    await asyncio.wait([receiver, asyncio.create_task(self._answered.wait())], return_when=asyncio.FIRST_COMPLETED)
-                    if receiver.done():
-                        break
+                    answered = asyncio.create_task(self._answered.wait())
+                    await asyncio.wait([receiver, answered], return_when=asyncio.FIRST_COMPLETED)
+                    answered.cancel()
                 message = await asyncio.to_thread(encode_image, item.image, self._first_seq + self.report.frames_sent, item.timestamp, encoding, jpeg_quality)
                 self._in_flight.add(message.seq)
                 self.report.sent_at[message.seq] = time.monotonic()

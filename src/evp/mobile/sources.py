@@ -26,15 +26,14 @@ class StreamSource:
     items: Iterator[Frame | TelemetryRecord]
     live: bool  # frames arrive in real time (camera, URL): no pacing needed
     lossless: bool  # the frames are exact (image files): stream them losslessly by default
-    skipped: list[str]
+    skipped: list[DatasetError]  # undecodable frames, skipped and reported at the end
 
 
 def _camera_model(spec: str | None, width: int, height: int) -> CameraModel:
-    """A calibration file or shipped profile, scaled to the source's resolution."""
-    from evp.calib.camera_files import read_camera
-    from evp.calib.profiles import load_profile
+    """A calibration file or shipped profile (seed 000's phone by default), scaled to the source's resolution."""
+    from evp.calib.profiles import camera_from
 
-    camera = read_camera(spec) if spec and Path(spec).is_file() else load_profile(spec or "nexus5x_640x380")
+    camera = camera_from(spec or "nexus5x_640x380")
     return camera if (camera.width, camera.height) == (width, height) else camera.scaled(width, height)
 
 
@@ -64,16 +63,15 @@ def _open_capture(spec: str, camera_spec: str | None, max_frames: int | None) ->
 
 
 def _dataset_items(dataset, max_frames: int | None, errors: list[DatasetError]) -> Iterator[Frame | TelemetryRecord]:
+    """Frames (decoded one at a time) and telemetry merged in time order, up to ``max_frames``."""
     import heapq
     import itertools
 
     frames = dataset.frames(errors)
-    if max_frames is not None:
-        frames = itertools.islice(frames, max_frames)
-    frames = list(frames) if max_frames is not None else frames
     telemetry = dataset.telemetry()
-    if max_frames is not None and frames:
-        end = frames[-1].timestamp
+    if max_frames is not None and max_frames < dataset.num_frames:
+        frames = itertools.islice(frames, max_frames)
+        end = dataset.frame_times[max_frames - 1]
         telemetry = (t for t in telemetry if t.timestamp <= end)
     return heapq.merge(frames, telemetry, key=lambda record: record.timestamp)
 
@@ -87,8 +85,10 @@ def open_source(spec: str, camera_spec: str | None = None, max_frames: int | Non
 
     dataset = open_dataset(Path(spec), fmt)
     if camera_spec:
+        from evp.calib.profiles import camera_from
+
         first = dataset.camera
-        camera = _camera_model(camera_spec, first.width, first.height) if first else _camera_model(camera_spec, 640, 380)
+        camera = _camera_model(camera_spec, first.width, first.height) if first else camera_from(camera_spec)
     elif dataset.camera is None:
         raise EvpError(f"{spec}: no calibration in the dataset; give --camera FILE or a profile name")
     else:
@@ -100,9 +100,8 @@ def open_source(spec: str, camera_spec: str | None = None, max_frames: int | Non
 
         fps = float(1.0 / np.median(np.diff(dataset.frame_times)))
     lossless = dataset.format != "video"
-    source = StreamSource(dataset.name, camera, fps, _dataset_items(dataset, max_frames, errors), live=False, lossless=lossless, skipped=[])
-    source.skipped = errors  # filled as frames are read
-    return source
+    # ``errors`` fills as frames are read: undecodable ones are skipped and reported
+    return StreamSource(dataset.name, camera, fps, _dataset_items(dataset, max_frames, errors), live=False, lossless=lossless, skipped=errors)
 
 
 def telemetry_message(record: TelemetryRecord):

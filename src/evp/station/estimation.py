@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from evp.geometry.transforms import quat_xyzw_from_matrices
+from evp.geometry.transforms import poses_from_xyz_quat, quat_xyzw_from_matrices
 from evp.station.protocol import CameraConfig, ImageMessage, Pose, ProtocolError
 from evp.types import PoseEstimate
 
@@ -39,16 +39,22 @@ def pose_message(seq: int, estimate: PoseEstimate, reset_counter: int, processin
     )
 
 
-def worker_main(connection, camera: dict, settings_json: str) -> None:
+def pose_matrix(pose: Pose) -> np.ndarray:
+    """T_world_cam (4x4) of a wire pose."""
+    qw, qx, qy, qz = pose.q
+    return poses_from_xyz_quat(np.array([pose.t]), np.array([[qx, qy, qz, qw]]))[0]
+
+
+def worker_main(connection, camera: CameraConfig, settings_json: str) -> None:
     """The estimator process: ('frame', ImageMessage) in, ('pose', Pose) or ('error', ...) out."""
     from evp.config import Settings
     from evp.errors import EvpError
     from evp.run_setup import make_estimator
     from evp.station.protocol import image_pixels
-    from evp.types import CameraModel, Frame
+    from evp.types import Frame
 
     settings = Settings.model_validate_json(settings_json)
-    estimator = make_estimator(CameraModel(**camera, name="mobile"), settings)
+    estimator = make_estimator(camera.camera_model(), settings)
     connection.send(("ready", None))
     while True:
         try:
@@ -96,7 +102,7 @@ class EstimatorWorker:
         self._loop = asyncio.get_running_loop()
         context = multiprocessing.get_context("spawn")
         self._connection, child = context.Pipe()
-        self._process = context.Process(target=worker_main, args=(child, camera.model_dump(), settings_json), name="evp-estimator", daemon=True)
+        self._process = context.Process(target=worker_main, args=(child, camera, settings_json), name="evp-estimator", daemon=True)
         self._process.start()
         child.close()
         self.ready = False

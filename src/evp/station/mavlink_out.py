@@ -20,9 +20,10 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from evp.config import MavlinkSettings
-from evp.geometry.transforms import se3_inverse
+from evp.geometry.transforms import quat_xyzw_from_matrices, se3_inverse
 
 os.environ.setdefault("MAVLINK20", "1")  # quality and reset_counter are MAVLink 2 extensions
 
@@ -36,8 +37,6 @@ TRACKED = ("OK", "RELOCALIZED")
 
 def mount_transform(settings: MavlinkSettings) -> np.ndarray:
     """T_body_cam: the preset mount turned by the extra roll/pitch/yaw (degrees, body axes)."""
-    from scipy.spatial.transform import Rotation
-
     T = np.eye(4)
     extra = Rotation.from_euler("xyz", settings.mount_rpy_deg, degrees=True).as_matrix()
     T[:3, :3] = extra @ MOUNTS[settings.mount]
@@ -56,9 +55,7 @@ def euler_frd(R: np.ndarray) -> tuple[float, float, float]:
 
 
 def quat_wxyz(R: np.ndarray) -> list[float]:
-    from scipy.spatial.transform import Rotation
-
-    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    x, y, z, w = quat_xyzw_from_matrices(R[None])[0]
     return [float(w), float(x), float(y), float(z)]
 
 
@@ -82,8 +79,6 @@ def next_state(previous: BodyState | None, T_ned_body: np.ndarray, time_s: float
         dt = time_s - previous.time_s
         R = T_ned_body[:3, :3]
         velocity = R.T @ (T_ned_body[:3, 3] - previous.T_ned_body[:3, 3]) / dt
-        from scipy.spatial.transform import Rotation
-
         rates = Rotation.from_matrix(previous.T_ned_body[:3, :3].T @ R).as_rotvec() / dt
     return BodyState(time_s, received_at, T_ned_body, velocity, rates, quality, reset_counter)
 
@@ -93,8 +88,6 @@ def extrapolate(state: BodyState, now: float) -> tuple[float, np.ndarray]:
     dt = max(0.0, now - state.received_at)
     T = state.T_ned_body.copy()
     if dt > 0 and np.all(np.isfinite(state.velocity_body)):
-        from scipy.spatial.transform import Rotation
-
         T[:3, 3] += T[:3, :3] @ state.velocity_body * dt
         T[:3, :3] = T[:3, :3] @ Rotation.from_rotvec(state.rates_body * dt).as_matrix()
     return state.time_s + dt, T

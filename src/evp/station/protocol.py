@@ -16,6 +16,8 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from evp.types import CameraModel
+
 PROTOCOL_VERSION = 1
 MAX_TEXT_BYTES = 64 * 1024
 MAX_IMAGE_BYTES = 16 * 1024 * 1024
@@ -85,6 +87,13 @@ class CameraConfig(_Message):
     p1: Finite = 0.0
     p2: Finite = 0.0
     k3: Finite = 0.0
+
+    @classmethod
+    def from_camera(cls, camera: CameraModel) -> CameraConfig:
+        return cls(**{name: getattr(camera, name) for name in cls.model_fields})
+
+    def camera_model(self, name: str = "mobile") -> CameraModel:
+        return CameraModel(**self.model_dump(), name=name)
 
 
 class OrbConfig(_Message):

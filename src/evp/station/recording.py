@@ -62,9 +62,11 @@ class SessionRecording:
             earlier = self.path.with_suffix(".mcap.old")
             self.path.replace(earlier)
         self._recorder = McapRecorder(self.path, durable=True)
+        self.carried_over = 0  # messages copied from the earlier file
         if earlier is not None:
             for message in read_messages(earlier):
                 self._recorder.write_raw(message)
+                self.carried_over += 1
             earlier.unlink()
 
     def image(self, message: ImageMessage, received_at: float) -> None:
@@ -153,5 +155,6 @@ def has_summary(path: Path) -> bool:
 
 def repair(path: Path) -> int:
     """Rewrite a recording that lacks its summary (station killed); returns the messages kept."""
-    SessionRecording(path).close()
-    return sum(1 for _ in read_messages(path))
+    recording = SessionRecording(path)
+    recording.close()
+    return recording.carried_over

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 
 from evp.config import Settings
@@ -42,7 +41,6 @@ def serve(host: str, port: int, data_dir: Path, settings: Settings, db_url: str 
         echo(f"TLS certificate {cert} (self-signed), SHA-256 {station.link['fingerprint_sha256']}")
     if not token:
         echo("no --token: any client that reaches this port may stream to the station")
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     config = uvicorn.Config(
         create_app(station),
         host=host,

@@ -38,7 +38,6 @@ from evp.station.protocol import (
 )
 from evp.station.recording import SessionRecording
 from evp.station.store import SessionStore
-from evp.types import CameraModel
 
 
 class StationHooks(Protocol):
@@ -56,8 +55,6 @@ class Counters:
     frames_received: int = 0
     frames_estimated: int = 0
     frames_dropped: int = 0
-    poses_sent: int = 0
-    errors: int = 0
     latencies_ms: deque = field(default_factory=lambda: deque(maxlen=300))
     estimated_times: deque = field(default_factory=lambda: deque(maxlen=120))  # wall times of recent poses
 
@@ -83,8 +80,6 @@ class LiveSession:
         self.counters = Counters()
         self.connected = False
         self.ended = False
-        self.last_pose: Pose | None = None
-        self.poses: list[Pose] = []
         self._last_seq = -1
         self._last_frame_time = -np.inf
         self._last_telemetry_time: dict[str, float] = {}
@@ -131,7 +126,6 @@ class LiveSession:
 
     def refuse(self, error: ProtocolError) -> None:
         """Tell the client, log the event; the session goes on."""
-        self.counters.errors += 1
         self.reply(Error(code=error.code, message=error.message, seq=error.seq))
         self.event("error", error.code, error.message if error.seq is None else f"frame {error.seq}: {error.message}")
 
@@ -183,7 +177,7 @@ class LiveSession:
         self.store.insert("settings", session_id=self.id, t=now, source="mobile", data_json=encode(message))
         if message.camera is None or message.camera == self.camera:
             return
-        camera = CameraModel(**message.camera.model_dump(), name=self.device or "mobile")
+        camera = message.camera.camera_model(self.device or "mobile")
         self.recording.camera(camera, now)
         self.camera = message.camera
         self.store.update_session(self.id, camera_json=message.camera.model_dump_json())
@@ -279,11 +273,8 @@ class LiveSession:
         latency_ms = (now - received_at) * 1000.0
         self._frame_row(message, received_at, estimated=True)
         self.counters.frames_estimated += 1
-        self.counters.poses_sent += 1
         self.counters.latencies_ms.append(latency_ms)
         self.counters.estimated_times.append(now)
-        self.last_pose = pose
-        self.poses.append(pose)
         self.reply(pose)
         self.recording.pose(pose, now)
         t, q = pose.t, pose.q

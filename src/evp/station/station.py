@@ -8,18 +8,16 @@ from __future__ import annotations
 import asyncio
 import hmac
 import json
-import logging
 import time
 from pathlib import Path
 
 from evp import __version__
 from evp.config import Settings
+from evp.station.estimation import pose_matrix
 from evp.station.protocol import PROTOCOL_VERSION, CameraConfig, Config, Hello, OrbConfig, Pose, ProtocolError
 from evp.station.recording import has_summary, repair
 from evp.station.session import LiveSession
 from evp.station.store import SessionStore
-
-log = logging.getLogger("evp.station")
 
 
 def default_camera(settings: Settings) -> CameraConfig:
@@ -28,11 +26,8 @@ def default_camera(settings: Settings) -> CameraConfig:
     from evp.calib.profiles import load_profile
 
     if settings.camera.calibration_file is not None:
-        camera = read_camera(settings.camera.calibration_file)
-    else:
-        camera = load_profile(settings.camera.profile or "nexus5x_640x380")
-    fields = ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
-    return CameraConfig(**{f: getattr(camera, f) for f in fields})
+        return CameraConfig.from_camera(read_camera(settings.camera.calibration_file))
+    return CameraConfig.from_camera(load_profile(settings.camera.profile or "nexus5x_640x380"))
 
 
 class Station:
@@ -58,7 +53,7 @@ class Station:
         """Recover what a station that stopped abruptly left behind, then start the outputs."""
         for session_id in self.store.mark_live_sessions_interrupted():
             self.store.log_event(session_id, "warning", "interrupted", "the station stopped during this session")
-        for row in self.store.list_sessions(limit=100000):
+        for row in self.store.list_sessions(limit=None, status="interrupted"):  # an ended session's recording is always closed
             path = Path(row["mcap_path"] or "")
             leftover = path.with_suffix(".mcap.old")
             if leftover.exists() and not path.exists():
@@ -160,17 +155,11 @@ class Station:
 
     def on_pose(self, session: LiveSession, pose: Pose, latency_ms: float) -> None:
         self.broadcast({"type": "pose", "session_id": session.id, "pose": pose.model_dump(), "latency_ms": latency_ms})
-        if self.mavlink is not None and (self._mavlink_session in (None, session.id) or self._mavlink_session not in self.sessions):
-            import numpy as np
-            from scipy.spatial.transform import Rotation
-
+        # the flight controller follows one vehicle: the first session with poses, until it is gone
+        if self.mavlink is not None and (self._mavlink_session == session.id or self._mavlink_session not in self.sessions):
             self._mavlink_session = session.id
-            T = np.eye(4)
-            w, x, y, z = pose.q
-            T[:3, :3] = Rotation.from_quat([x, y, z, w]).as_matrix()
-            T[:3, 3] = pose.t
             generation = self._generations.get(session.id, 0)
-            self.mavlink.update(T, pose.timestamp, pose.state, pose.quality, generation + pose.reset_counter)
+            self.mavlink.update(pose_matrix(pose), pose.timestamp, pose.state, pose.quality, generation + pose.reset_counter)
 
     def on_event(self, session: LiveSession | None, event: dict) -> None:
         self.broadcast({"type": "event", "event": event})

@@ -138,19 +138,15 @@ class SessionStore:
         self.url = url
         self.engine = make_engine(url)
         self._queue: queue.Queue = queue.Queue()
-        self._idle = threading.Event()
-        self._idle.set()
         self._thread = threading.Thread(target=self._write_loop, name="evp-db-writer", daemon=True)
         self._thread.start()
 
     # --- writes (any thread) -----------------------------------------------------------------
 
     def insert(self, table: str, **row: Any) -> None:
-        self._idle.clear()
         self._queue.put(("insert", table, row, None))
 
     def update_session(self, session_id: str, **values: Any) -> None:
-        self._idle.clear()
         self._queue.put(("update", "sessions", values, session_id))
 
     def create_session(self, device: str, mcap_path: str) -> str:
@@ -162,13 +158,6 @@ class SessionStore:
         row = {"session_id": session_id, "t": time.time(), "level": level, "code": code, "text": text}
         self.insert("events", **row)
         return row
-
-    def flush(self, timeout: float = 10.0) -> None:
-        """Wait until everything queued so far is committed."""
-        deadline = time.monotonic() + timeout
-        while not (self._queue.empty() and self._idle.wait(0.01)):
-            if time.monotonic() > deadline:
-                raise TimeoutError("database writes did not finish")
 
     def close(self) -> None:
         self._queue.put(None)
@@ -183,8 +172,6 @@ class SessionStore:
                 batch.append(self._queue.get())
             stop = None in batch
             self._commit(b for b in batch if b is not None)
-            if self._queue.empty():
-                self._idle.set()
             if stop:
                 return
 
@@ -203,9 +190,12 @@ class SessionStore:
             row = connection.execute(select(sessions).where(sessions.c.id == session_id)).mappings().first()
         return dict(row) if row else None
 
-    def list_sessions(self, limit: int = 200) -> list[dict]:
+    def list_sessions(self, limit: int | None = 200, status: str | None = None) -> list[dict]:
+        query = select(sessions).order_by(sessions.c.started_at.desc()).limit(limit)
+        if status is not None:
+            query = query.where(sessions.c.status == status)
         with self.engine.connect() as connection:
-            rows = connection.execute(select(sessions).order_by(sessions.c.started_at.desc()).limit(limit)).mappings().all()
+            rows = connection.execute(query).mappings().all()
         return [dict(r) for r in rows]
 
     def rows(self, table: str, session_id: str) -> list[dict]:

@@ -4,7 +4,7 @@
 
 const $ = id => document.getElementById(id);
 const PROTOCOL = 1, ENCODING = { jpeg: 1, png: 2 };
-const phone = { socket: null, config: null, sessionId: null, nextSeq: 0, sent: 0, poses: 0, dropped: 0, imu: 0, gps: 0, stream: null, timer: null, lastPose: null };
+const phone = { socket: null, config: null, sessionId: null, nextSeq: 0, sent: 0, poses: 0, dropped: 0, imu: 0, gps: 0, stream: null, timer: null };
 window.evpPhone = phone;
 
 function log(text) {
@@ -33,7 +33,7 @@ function onMessage(message) {
   switch (message.type) {
     case "welcome": phone.sessionId = message.session_id; phone.nextSeq = message.next_seq; $("session").textContent = message.session_id; break;
     case "config": phone.config = message; log(`config: ${message.camera.width}x${message.camera.height} at ${message.fps} fps, ${message.encoding}`); if (phone.stream) announce(); break;
-    case "pose": phone.poses++; phone.lastPose = message; showPose(message); break;
+    case "pose": phone.poses++; showPose(message); break;
     case "dropped": phone.dropped++; break;
     case "enable": $("enable").checked = message.enabled; break;
     case "status": break;

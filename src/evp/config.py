@@ -142,6 +142,9 @@ class StationSettings(_Section):
     encoding: Literal["jpeg", "png", "raw"] = Field("jpeg", description="image encoding asked of phones")
     jpeg_quality: int = Field(85, ge=1, le=100)
     estimate_on_connect: bool = Field(True, description="start estimating as soon as a mobile station is configured (else wait for the operator)")
+    resume_window_s: float = Field(
+        300.0, gt=0, description="an interrupted session keeps its estimator (and map) this long for a reconnect; later it resumes with a new map"
+    )
 
 
 class Settings(_Section):

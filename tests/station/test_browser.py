@@ -43,11 +43,12 @@ def test_phone_page_streams_and_operator_sees_the_trajectory(tmp_path, station_d
     write_y4m(video, [frame.image for frame in dataset.frames()], fps=25)
     ARTIFACTS.mkdir(exist_ok=True)
     args = ["--use-fake-ui-for-media-stream", "--use-fake-device-for-media-stream", f"--use-file-for-fake-video-capture={video}", "--no-sandbox"]
-    with running_station(station_data) as station, sync_api.sync_playwright() as playwright:
+    token = "t0ken"  # the operator page and the phone page carry it, as the QR code and the banner give them
+    with running_station(station_data, "--token", token) as station, sync_api.sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=CHROMIUM, args=args)
         context = browser.new_context(ignore_https_errors=True, geolocation={"latitude": 3.3745, "longitude": -76.5331}, permissions=["geolocation"])
         operator = context.new_page()
-        operator.goto(station.http + "/")
+        operator.goto(f"{station.http}/?token={token}")
         operator.wait_for_function("document.getElementById('st-link').textContent === 'up'")
         operator.click("#camera-button")
         form = "#camera-form"
@@ -59,7 +60,7 @@ def test_phone_page_streams_and_operator_sees_the_trajectory(tmp_path, station_d
         operator.wait_for_function("document.getElementById('configure-result').textContent.startsWith('stored')")
 
         phone = context.new_page()
-        phone.goto(station.http + "/phone")
+        phone.goto(f"{station.http}/phone?token={token}")
         phone.wait_for_function("window.evpPhone.config && window.evpPhone.config.camera.width === 240")
         phone.click("#start")
         phone.wait_for_function("window.evpPhone.poses >= 40 && window.evpPhone.gps >= 1", timeout=120_000)

@@ -7,6 +7,8 @@ from __future__ import annotations
 import asyncio
 import signal
 import time
+import urllib.error
+import urllib.request
 
 import pytest
 import websockets
@@ -67,6 +69,14 @@ async def _refused(url: str, first) -> tuple[str, str]:
     return error.code, error.message
 
 
+def _http_status(url: str) -> int:
+    try:
+        with urllib.request.urlopen(url, context=insecure_tls(), timeout=10) as response:
+            return response.status
+    except urllib.error.HTTPError as exc:
+        return exc.code
+
+
 def _store(data) -> SessionStore:
     return SessionStore(f"sqlite:///{data / 'evp.sqlite'}")
 
@@ -119,6 +129,9 @@ def test_bad_messages_get_specific_errors_and_the_session_goes_on(station_data, 
     with running_station(station_data, "--token", TOKEN) as station:
         session_id, codes = asyncio.run(scenario(station.url))
         time.sleep(0.5)
+        assert _http_status(f"{station.http}/api/state") == 401  # the operator API shows the token: it needs it too
+        assert _http_status(f"{station.http}/api/state?token={TOKEN}") == 200
+        assert _http_status(f"{station.http}/") == 200  # the page itself is public
     store = _store(station_data)
     try:
         logged = [e["code"] for e in store.rows("events", session_id)]
@@ -194,5 +207,43 @@ def test_killed_station_loses_nothing_it_recorded(station_data, frames):
         assert has_summary(mcap)
         assert sum(1 for topic, _, _ in decoded_messages(mcap) if topic == "/camera/image/compressed") == 6
         assert "recording_repaired" in [e["code"] for e in store.rows("events", session_id)]
+    finally:
+        store.close()
+
+
+def test_unresumed_session_is_released_and_resumes_from_disk_with_a_new_map(tmp_path, station_data, frames):
+    camera, images = frames
+    config = tmp_path / "settings.yaml"
+    config.write_text("station:\n  resume_window_s: 1.0\n")
+
+    async def first_link(url: str) -> str:
+        connection, welcome = await _open_session(url, camera)
+        await _stream_until_posed(connection, images[:3], 0)
+        connection.transport.abort()
+        return welcome.session_id
+
+    async def second_link(url: str, session_id: str) -> None:
+        connection, welcome = await _open_session(url, camera, resume=session_id)
+        assert welcome.resumed and welcome.next_seq == 3
+        await _stream_until_posed(connection, images[3:6], welcome.next_seq)
+        await connection.send('{"type": "bye"}')
+        await connection.close()
+
+    with running_station(station_data, "--token", TOKEN, "--config", str(config)) as station:
+        session_id = asyncio.run(first_link(station.url))
+        store = _store(station_data)
+        deadline = time.monotonic() + 20
+        while "released" not in [e["code"] for e in store.rows("events", session_id)]:
+            assert time.monotonic() < deadline, "the interrupted session was not released"
+            time.sleep(0.2)
+        assert has_summary(store.session(session_id)["mcap_path"])  # closed when released
+        asyncio.run(second_link(station.url, session_id))
+        time.sleep(0.5)
+    try:
+        session = store.session(session_id)
+        assert session["status"] == "ended"
+        assert len(store.rows("frames", session_id)) == 6 and len(store.rows("poses", session_id)) == 6
+        assert [r["source"] for r in store.rows("settings", session_id)].count("server") == 2  # a new estimator after the release
+        assert sum(1 for topic, _, _ in decoded_messages(session["mcap_path"]) if topic.startswith("/camera/image")) == 6
     finally:
         store.close()

@@ -15,12 +15,13 @@ def link_info(host: str, port: int, tls: bool, cert: Path | None, token: str) ->
     """The addresses an operator and a phone use, and the certificate to trust."""
     scheme = "https" if tls else "http"
     reachable = host if host not in ("0.0.0.0", "::", "") else next((a for a in local_addresses() if a != "127.0.0.1"), "127.0.0.1")
-    phone_url = f"{scheme}://{reachable}:{port}/phone" + (f"?token={token}" if token else "")
+    query = f"?token={token}" if token else ""
+    phone_url = f"{scheme}://{reachable}:{port}/phone{query}"
     return {
         "host": host,
         "port": port,
         "tls": tls,
-        "operator_url": f"{scheme}://{reachable}:{port}/",
+        "operator_url": f"{scheme}://{reachable}:{port}/{query}",
         "phone_url": phone_url,
         "mobile_ws_url": f"{'wss' if tls else 'ws'}://{reachable}:{port}/ws/mobile",
         "fingerprint_sha256": fingerprint(cert) if cert else None,
@@ -40,7 +41,7 @@ def serve(host: str, port: int, data_dir: Path, settings: Settings, db_url: str 
     if cert:
         echo(f"TLS certificate {cert} (self-signed), SHA-256 {station.link['fingerprint_sha256']}")
     if not token:
-        echo("no --token: any client that reaches this port may stream to the station")
+        echo("no --token: any client that reaches this port may stream to the station and use the operator UI")
     config = uvicorn.Config(
         create_app(station),
         host=host,

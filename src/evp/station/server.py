@@ -13,14 +13,17 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import hmac
 import io
 import json
 import time
 from importlib import resources
 from pathlib import Path
+from urllib.parse import parse_qs
 
 from pydantic import ValidationError
 from starlette.applications import Starlette
+from starlette.middleware import Middleware
 from starlette.requests import Request
 from starlette.responses import FileResponse, JSONResponse, PlainTextResponse, Response
 from starlette.routing import Mount, Route, WebSocketRoute
@@ -96,9 +99,9 @@ async def mobile_endpoint(websocket: WebSocket) -> None:
     except WebSocketDisconnect:
         pass
     finally:
-        session.detach(clean=session.ended)
         if session.ended:
-            await station.end_session(session)
+            await station.end_session(session)  # frames in flight get their poses, still sent on this link
+        session.detach(clean=session.ended)
         while not outbox.empty():  # let the last replies (poses of frames in flight) go out
             await asyncio.sleep(0.01)
             if sender.done():
@@ -208,6 +211,29 @@ def _page(name: str):
     return page
 
 
+class OperatorTokenGate:
+    """With ``--token``, the operator API and live feed need it too (``?token=`` or ``X-EVP-Token``):
+    they show the token (phone URL, QR code) and control the sessions. The pages themselves are public."""
+
+    PROTECTED = ("/api/", "/ws/operator")
+
+    def __init__(self, app, token: str):
+        self.app = app
+        self.token = token
+
+    async def __call__(self, scope, receive, send) -> None:
+        if self.token and scope["type"] in ("http", "websocket") and scope["path"].startswith(self.PROTECTED):
+            supplied = parse_qs(scope.get("query_string", b"").decode()).get("token", [""])[0]
+            supplied = supplied or dict(scope.get("headers", [])).get(b"x-evp-token", b"").decode()
+            if not hmac.compare_digest(supplied.encode(), self.token.encode()):
+                if scope["type"] == "websocket":
+                    await send({"type": "websocket.close", "code": 1008, "reason": "missing or wrong token"})
+                else:
+                    await JSONResponse({"error": "missing or wrong token (?token= or X-EVP-Token)"}, status_code=401)(scope, receive, send)
+                return
+        await self.app(scope, receive, send)
+
+
 def create_app(station: Station) -> Starlette:
     @contextlib.asynccontextmanager
     async def lifespan(app: Starlette):
@@ -230,6 +256,6 @@ def create_app(station: Station) -> Starlette:
         WebSocketRoute("/ws/operator", operator_endpoint),
         Mount("/static", StaticFiles(directory=_static_dir()), name="static"),
     ]
-    app = Starlette(routes=routes, lifespan=lifespan)
+    app = Starlette(routes=routes, lifespan=lifespan, middleware=[Middleware(OperatorTokenGate, token=station.token)])
     app.state.station = station
     return app

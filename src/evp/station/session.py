@@ -79,6 +79,7 @@ class LiveSession:
         self.send: Callable[[str], None] | None = None
         self.counters = Counters()
         self.connected = False
+        self.disconnected_at: float | None = None  # time.monotonic() when the link went down
         self.ended = False
         self._last_seq = -1
         self._last_frame_time = -np.inf
@@ -103,12 +104,14 @@ class LiveSession:
     def attach(self, send: Callable[[str], None]) -> None:
         self.send = send
         self.connected = True
+        self.disconnected_at = None
         self.store.update_session(self.id, status="live", ended_at=None)
 
     def detach(self, clean: bool) -> None:
         """The link closed: after ``bye`` the session has ended, otherwise it is interrupted."""
         self.send = None
         self.connected = False
+        self.disconnected_at = time.monotonic()
         self.store.update_session(self.id, status="ended" if clean else "interrupted", ended_at=time.time(), **self.count_columns())
         self.event(
             "info" if clean else "warning",

@@ -197,4 +197,16 @@ class Station:
                 if session.connected:
                     session.reply(session.status())
                     self.store.update_session(session.id, **session.count_columns())
+                elif time.monotonic() - session.disconnected_at > self.settings.station.resume_window_s:
+                    await self._release(session)
+                    continue
                 self.on_status(session)
+
+    async def _release(self, session: LiveSession) -> None:
+        """An interrupted session nobody resumed: free its estimator process, close its recording.
+        A later resume reopens it from disk with a new map."""
+        self.sessions.pop(session.id, None)
+        await session.close("interrupted")
+        window = self.settings.station.resume_window_s
+        session.event("info", "released", f"not resumed within {window:g} s: estimator stopped, recording closed")
+        self.broadcast({"type": "sessions"})

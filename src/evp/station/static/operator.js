@@ -2,6 +2,8 @@
 "use strict";
 
 const $ = id => document.getElementById(id);
+const TOKEN = new URLSearchParams(location.search).get("token") || ""; // needed when the station has --token
+const withToken = url => TOKEN ? url + (url.includes("?") ? "&" : "?") + "token=" + encodeURIComponent(TOKEN) : url;
 const state = { config: null, live: {}, selected: null, trajectories: {} };
 window.evp = state; // for tests and the curious
 
@@ -65,14 +67,14 @@ function fillSettings(config) {
 }
 
 async function loadSessions() {
-  const response = await fetch("/api/sessions");
+  const response = await fetch(withToken("/api/sessions"));
   const body = await response.json();
   const tbody = document.querySelector("#sessions tbody");
   tbody.innerHTML = "";
   for (const s of body.sessions) {
     const row = tbody.insertRow();
     for (const value of [s.id, s.device, s.status, s.frames_received, s.frames_estimated, s.frames_dropped]) row.insertCell().textContent = value;
-    row.insertCell().innerHTML = `<a href="/api/sessions/${s.id}/trajectory.tum">TUM</a> · <a href="/api/sessions/${s.id}/recording.mcap">MCAP</a>`;
+    row.insertCell().innerHTML = `<a href="${withToken(`/api/sessions/${s.id}/trajectory.tum`)}">TUM</a> · <a href="${withToken(`/api/sessions/${s.id}/recording.mcap`)}">MCAP</a>`;
   }
 }
 
@@ -108,7 +110,7 @@ function onMessage(message) {
 }
 
 function connect() {
-  const socket = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws/operator");
+  const socket = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + withToken("/ws/operator"));
   socket.onopen = () => { $("st-link").textContent = "up"; };
   socket.onclose = () => { $("st-link").textContent = "down (retrying)"; setTimeout(connect, 1000); };
   socket.onmessage = event => onMessage(JSON.parse(event.data));
@@ -116,7 +118,7 @@ function connect() {
 
 async function command(action) {
   if (!state.selected) return;
-  const response = await fetch(`/api/sessions/${state.selected}/${action}`, { method: "POST" });
+  const response = await fetch(withToken(`/api/sessions/${state.selected}/${action}`), { method: "POST" });
   if (!response.ok) addEvent({ t: Date.now() / 1000, level: "error", code: action, text: (await response.json()).error, session_id: state.selected });
   if (action === "start") state.trajectories[state.selected] = [];
 }
@@ -127,11 +129,12 @@ async function configure() {
   const form = $("camera-form").elements;
   for (const key of ["width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"]) camera[key] = Number(form[key].value);
   const body = { orb, camera, fps: Number(form.fps.value), color_space: form.color_space.value };
-  const response = await fetch("/api/configure", { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body) });
+  const response = await fetch(withToken("/api/configure"), { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body) });
   const result = await response.json();
   $("configure-result").textContent = response.ok ? "stored and sent to the mobile stations" : "refused: " + result.error;
 }
 
+$("qr").src = withToken("/api/qr.svg");
 $("camera-button").onclick = () => $("camera-dialog").showModal();
 $("configure").onclick = configure;
 $("start").onclick = () => command("start");

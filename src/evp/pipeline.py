@@ -119,7 +119,7 @@ def _timing(result: RunResult) -> dict:
         array = np.array(values) if values else np.zeros(1)
         return {"median": float(np.median(array)), "p95": float(np.percentile(array, 95))}
 
-    # SLAM with inline mapping: tracking time without the mapping done in the same call
+    # SLAM: tracking time without the keyframe mapping a call may run first (inline mapping)
     tracking = result.slam.tracking_ms if result.slam is not None else result.tracking_ms
     tracking_stats = stats(tracking)
     timing: dict = {"tracking_ms": tracking, "tracking_ms_median": tracking_stats["median"], "tracking_ms_p95": tracking_stats["p95"]}

@@ -5,7 +5,7 @@ Each row starts ``evp serve`` (TLS, as deployed) and K concurrent ``evp stream -
 rendered seed-000 circle (640x380, 30 fps, JPEG q90): a phone's pace, so the station drops what it
 cannot keep up with. A stream counts as sustained when >= 90 % of its frames get a pose.
 
-    python bench/station_latency.py [--duration 20] [--streams 1 2 3] [--out DIR]
+    python bench/station_latency.py [--duration 20] [--streams 1 2 3] [--estimators slam klt-vo] [--source SEQUENCE]
 """
 
 from __future__ import annotations
@@ -65,15 +65,16 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=20.0, help="seconds of 30 fps video per stream")
     parser.add_argument("--streams", type=int, nargs="+", default=[1, 2, 3])
     parser.add_argument("--estimators", nargs="+", default=["slam", "klt-vo"])
+    parser.add_argument("--source", type=Path, help="a real sequence to stream instead of the rendered circle (e.g. ../shared/data/euroc_mh_01_easy_moving_360)")
     args = parser.parse_args()
-    print(f"command: python bench/station_latency.py --duration {args.duration:g} --streams {' '.join(map(str, args.streams))}")
+    print(f"command: python bench/station_latency.py {' '.join(sys.argv[1:])}")
     print(
         "| estimator | streams | frames each | frames answered with a pose | poses/s (all streams) | latency p50 ms (worst stream) | latency p95 ms | streams sustained |"
     )
     print("|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        source = _circle(work / "circle", args.duration)
+        source = args.source or _circle(work / "circle", args.duration)
         for estimator in args.estimators:
             for count in args.streams:
                 print(_row(estimator, count, source, work), flush=True)

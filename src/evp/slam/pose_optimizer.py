@@ -22,7 +22,7 @@ def apply_increment(T_cw: np.ndarray, xi: np.ndarray) -> np.ndarray:
     """Left-multiply by exp of ``xi = (omega, v)``: rotation vector then translation."""
     R = cv2.Rodrigues(xi[:3].reshape(3, 1))[0]
     out = np.eye(4)
-    out[:3, :3] = nearest_rotation(R @ T_cw[:3, :3])
+    out[:3, :3] = R @ T_cw[:3, :3]
     out[:3, 3] = R @ T_cw[:3, 3] + xi[3:]
     return out
 
@@ -37,45 +37,51 @@ def optimise_pose(
     iterations: int = 10,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Refined ``T_cw`` and the inlier mask; ``observed`` are undistorted pixel coordinates."""
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     T = T_cw.copy()
     inlier = np.ones(len(points), bool)
     for round_index in range(rounds):
         robust = round_index < rounds - 2
-        for _ in range(iterations):
-            use = inlier
-            if use.sum() < 3:
-                break
-            P, obs, w_info = points[use], observed[use], inv_sigma2[use]
-            pc = P @ T[:3, :3].T + T[:3, 3]
-            x, y, z = pc[:, 0], pc[:, 1], np.maximum(pc[:, 2], 1e-6)
-            iz = 1.0 / z
-            r = np.stack([fx * x * iz + cx - obs[:, 0], fy * y * iz + cy - obs[:, 1]], axis=1)
-            # d(residual)/d(point in camera), then d(point)/d(xi) = [-[pc]x | I]
-            J = np.zeros((len(P), 2, 6))
-            J[:, 0, 0] = -fx * x * y * iz * iz
-            J[:, 0, 1] = fx * (1 + x * x * iz * iz)
-            J[:, 0, 2] = -fx * y * iz
-            J[:, 0, 3] = fx * iz
-            J[:, 0, 5] = -fx * x * iz * iz
-            J[:, 1, 0] = -fy * (1 + y * y * iz * iz)
-            J[:, 1, 1] = fy * x * y * iz * iz
-            J[:, 1, 2] = fy * x * iz
-            J[:, 1, 4] = fy * iz
-            J[:, 1, 5] = -fy * y * iz * iz
-            chi2 = np.sum(r * r, axis=1) * w_info
-            weight = w_info.copy()
-            if robust:
-                e = np.sqrt(chi2)
-                weight *= np.where(e <= HUBER_DELTA, 1.0, HUBER_DELTA / np.maximum(e, 1e-12))
-            H = np.einsum("n,nki,nkj->ij", weight, J, J)
-            g = np.einsum("n,nki,nk->i", weight, J, r)
-            try:
-                xi = -np.linalg.solve(H + 1e-9 * np.eye(6), g)
-            except np.linalg.LinAlgError:
-                break
-            T = apply_increment(T, xi)
-            if np.linalg.norm(xi) < 1e-10:
-                break
+        if inlier.sum() >= 3:
+            P, obs, w_info = points[inlier], observed[inlier], inv_sigma2[inlier]
+            for _ in range(iterations):
+                xi = _gauss_newton_step(T, P, obs, w_info, K, robust)
+                if xi is None:
+                    break
+                T = apply_increment(T, xi)
+                if np.linalg.norm(xi) < 1e-10:
+                    break
+        T[:3, :3] = nearest_rotation(T[:3, :3])  # products of rotations drift off SO(3) slowly
         inlier = reprojection_chi2(points @ T[:3, :3].T + T[:3, 3], observed, K, inv_sigma2) < CHI2_2DOF
     return T, inlier
+
+
+def _gauss_newton_step(T: np.ndarray, P: np.ndarray, obs: np.ndarray, w_info: np.ndarray, K: np.ndarray, robust: bool) -> np.ndarray | None:
+    """The increment ``xi`` minimising the (Huber-weighted) reprojection error to first order."""
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    pc = P @ T[:3, :3].T + T[:3, 3]
+    x, y = pc[:, 0], pc[:, 1]
+    iz = 1.0 / np.maximum(pc[:, 2], 1e-6)
+    xz, yz = x * iz, y * iz
+    r = np.stack([fx * xz + cx - obs[:, 0], fy * yz + cy - obs[:, 1]], axis=1)
+    # d(residual)/d(point in camera), then d(point)/d(xi) = [-[pc]x | I]; rows 2i and 2i+1
+    J = np.zeros((len(P), 2, 6))
+    J[:, 0, 0] = -fx * xz * yz
+    J[:, 0, 1] = fx * (1 + xz * xz)
+    J[:, 0, 2] = -fx * yz
+    J[:, 0, 3] = fx * iz
+    J[:, 0, 5] = -fx * xz * iz
+    J[:, 1, 0] = -fy * (1 + yz * yz)
+    J[:, 1, 1] = fy * xz * yz
+    J[:, 1, 2] = fy * xz
+    J[:, 1, 4] = fy * iz
+    J[:, 1, 5] = -fy * yz * iz
+    weight = w_info
+    if robust:
+        e = np.sqrt(np.sum(r * r, axis=1) * w_info)
+        weight = w_info * np.where(e <= HUBER_DELTA, 1.0, HUBER_DELTA / np.maximum(e, 1e-12))
+    J2 = J.reshape(-1, 6)
+    WJ = J2 * np.repeat(weight, 2)[:, None]
+    try:
+        return -np.linalg.solve(WJ.T @ J2 + 1e-9 * np.eye(6), WJ.T @ r.ravel())
+    except np.linalg.LinAlgError:
+        return None

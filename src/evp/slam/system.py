@@ -251,7 +251,9 @@ class SlamSystem:
 
     def _rows_with_points(self, point_ids: np.ndarray) -> np.ndarray:
         """Feature rows whose map point still exists (mapping may have culled some)."""
-        return np.array([r for r in np.flatnonzero(point_ids >= 0) if int(point_ids[r]) in self.map.points], dtype=int)
+        rows = np.flatnonzero(point_ids >= 0)
+        points = self.map.points
+        return rows[np.fromiter((int(i) in points for i in point_ids[rows]), bool, len(rows))]
 
     def _track_motion_model(self, features: Features, matched: np.ndarray) -> np.ndarray | None:
         last = self._last
@@ -333,8 +335,9 @@ class SlamSystem:
 
     def _track_local_map(self, features: Features, matched: np.ndarray, T_cw: np.ndarray) -> tuple[np.ndarray, int]:
         local = self._local_keyframes(matched)
-        already = set(int(i) for i in matched[matched >= 0])
-        ids = sorted({int(p) for k in local for p in self.map.keyframes[k].point_ids if p >= 0 and int(p) not in already and int(p) in self.map.points})
+        # keyframes' point ids always name live points (the Map keeps them in step)
+        ids = np.unique(np.concatenate([self.map.keyframes[k].point_ids for k in local])) if local else np.zeros(0, int)
+        ids = ids[(ids >= 0) & ~np.isin(ids, matched[matched >= 0])].tolist()
         projection = project_points(self.map, ids, T_cw, self.extractor, self.K, self.bounds)
         if projection is not None:
             candidates = [ids[r] for r in projection.rows]

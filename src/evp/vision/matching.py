@@ -4,6 +4,7 @@ projection (candidates within a radius and a scale window of where a map point s
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 TH_HIGH = 100  # ORB-SLAM's Hamming thresholds
 TH_LOW = 50
@@ -61,6 +62,34 @@ def match_descriptors(a: np.ndarray, b: np.ndarray, max_distance: float = TH_LOW
     return best_unique(hamming_matrix(a, b), max_distance, ratio)
 
 
+def hamming_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamming distances between ``a[k]`` and ``b[k]`` for each row pair (popcount of the XOR)."""
+    xor = np.ascontiguousarray(a).view(np.uint64) ^ np.ascontiguousarray(b).view(np.uint64)
+    return np.bitwise_count(xor).sum(axis=1).astype(np.float32)
+
+
+def best_unique_pairs(rows: np.ndarray, cols: np.ndarray, distances: np.ndarray, max_distance: float, ratio: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`best_unique` over a sparse candidate list (absent pairs count as no match).
+
+    Ties go to the lowest column, as ``argmin`` over a dense table would."""
+    if len(rows) == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    order = np.lexsort((cols, distances, rows))
+    rows, cols, distances = rows[order], cols[order], distances[order]
+    first = np.r_[True, rows[1:] != rows[:-1]]
+    starts = np.flatnonzero(first)
+    has_second = np.r_[starts[1:], len(rows)] - starts > 1
+    second = np.full(len(starts), NO_MATCH, np.float32)
+    second[has_second] = distances[starts[has_second] + 1]
+    best = distances[starts]
+    good = (best <= max_distance) & (best < ratio * second)
+    rows, cols, best = rows[starts[good]], cols[starts[good]], best[good]
+    order = np.argsort(best, kind="stable")
+    _, claimed = np.unique(cols[order], return_index=True)
+    keep = np.sort(order[claimed])
+    return rows[keep], cols[keep]
+
+
 def match_in_window(
     desc_a: np.ndarray,
     xy_a: np.ndarray,
@@ -74,15 +103,19 @@ def match_in_window(
     octave_window: int = 1,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Match rows of ``a`` to rows of ``b`` lying within ``radius`` pixels of ``xy_a`` (and, when
-    octaves are given, within ``octave_window`` pyramid levels)."""
-    distances = hamming_matrix(desc_a, desc_b)
-    if distances.size == 0:
-        return np.zeros(0, int), np.zeros(0, int)
+    octaves are given, within ``octave_window`` pyramid levels).
+
+    Candidates come from a k-d tree, so only pairs inside the window have their descriptors
+    compared (tracking projects thousands of map points against a thousand keypoints)."""
     radius = np.broadcast_to(np.asarray(radius, float), (len(xy_a),))
-    dx = xy_a[:, None, 0] - xy_b[None, :, 0]
-    dy = xy_a[:, None, 1] - xy_b[None, :, 1]
-    far = dx * dx + dy * dy > (radius * radius)[:, None]
+    finite = np.flatnonzero(np.isfinite(xy_a).all(axis=1) & np.isfinite(radius))
+    if len(finite) == 0 or len(xy_b) == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    pairs = cKDTree(xy_a[finite]).sparse_distance_matrix(cKDTree(xy_b), float(radius[finite].max()) * (1 + 1e-9) + 1e-9, output_type="ndarray")
+    rows, cols = finite[pairs["i"]], pairs["j"].astype(int)
+    d = xy_a[rows] - xy_b[cols]
+    near = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] <= radius[rows] * radius[rows]
     if octave_a is not None and octave_b is not None:
-        far |= np.abs(octave_a[:, None] - octave_b[None, :]) > octave_window
-    distances[far] = NO_MATCH
-    return best_unique(distances, max_distance, ratio)
+        near &= np.abs(octave_a[rows] - octave_b[cols]) <= octave_window
+    rows, cols = rows[near], cols[near]
+    return best_unique_pairs(rows, cols, hamming_pairs(desc_a[rows], desc_b[cols]), max_distance, ratio)

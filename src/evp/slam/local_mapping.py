@@ -148,7 +148,7 @@ class LocalMapper:
             if projected is None:
                 continue
             rows, uv, level, radius = projected.rows, projected.uv, projected.level, 3.0 * self.extractor.scale_factors[projected.level]
-            descriptors = np.array([self.map.points[candidates[r]].descriptor for r in rows])
+            descriptors = self.map.store.descriptor[np.asarray(candidates)[rows]]
             a, b = match_in_window(descriptors, uv, nb.features.descriptors, nb.features.un_px, radius, TH_LOW, 1.0, level, nb.features.octave)
             for r, index in zip(a, b, strict=True):
                 point = self.map.points.get(candidates[rows[r]])

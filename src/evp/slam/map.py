@@ -41,18 +41,91 @@ class KeyFrame:
         return [k for k, w in self.covisible.most_common(count) if w >= min_weight]
 
 
-@dataclass
+class PointStore:
+    """The per-point numbers tracking reads every frame, as arrays indexed by point id, so that
+    thousands of points are gathered with one fancy index instead of a Python loop."""
+
+    def __init__(self, capacity: int = 1024):
+        self.position = np.zeros((capacity, 3))
+        self.normal = np.zeros((capacity, 3))
+        self.min_distance = np.zeros(capacity)
+        self.max_distance = np.full(capacity, np.inf)
+        self.descriptor = np.zeros((capacity, 32), np.uint8)
+
+    def reserve(self, point_id: int) -> None:
+        """Room for ``point_id`` (arrays double; views taken before do not follow)."""
+        capacity = len(self.position)
+        if point_id < capacity:
+            return
+        grown = max(2 * capacity, point_id + 1)
+        for name in ("position", "normal", "min_distance", "max_distance", "descriptor"):
+            old = getattr(self, name)
+            new = np.zeros((grown, *old.shape[1:]), old.dtype)
+            new[:capacity] = old
+            setattr(self, name, new)
+        self.max_distance[capacity:] = np.inf
+
+
 class MapPoint:
-    id: int
-    position: np.ndarray
-    descriptor: np.ndarray  # (32,) uint8, the most representative of its observations
-    first_kf: int
-    observations: dict[int, int] = field(default_factory=dict)  # keyframe id -> feature index
-    normal: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    min_distance: float = 0.0
-    max_distance: float = np.inf
-    visible: int = 1  # frames in whose frustum it was
-    found: int = 1  # frames that matched it
+    """A 3-D point and its observations. Its geometry lives in the map's :class:`PointStore`:
+    ``position``, ``normal`` and ``descriptor`` are views of store rows (do not keep one across
+    :meth:`Map.add_point`, which may grow the store)."""
+
+    __slots__ = ("id", "first_kf", "observations", "visible", "found", "_store")
+
+    def __init__(self, store: PointStore, point_id: int, position: np.ndarray, descriptor: np.ndarray, first_kf: int):
+        self._store = store
+        self.id = point_id
+        self.first_kf = first_kf
+        self.observations: dict[int, int] = {}  # keyframe id -> feature index
+        self.visible = 1  # frames in whose frustum it was
+        self.found = 1  # frames that matched it
+        store.reserve(point_id)
+        store.position[point_id] = position
+        store.descriptor[point_id] = descriptor  # the most representative of its observations
+        store.normal[point_id] = 0.0
+        store.min_distance[point_id], store.max_distance[point_id] = 0.0, np.inf
+
+    @property
+    def position(self) -> np.ndarray:
+        return self._store.position[self.id]
+
+    @position.setter
+    def position(self, value: np.ndarray) -> None:
+        self._store.position[self.id] = value
+
+    @property
+    def normal(self) -> np.ndarray:
+        """Mean viewing direction (unit)."""
+        return self._store.normal[self.id]
+
+    @normal.setter
+    def normal(self, value: np.ndarray) -> None:
+        self._store.normal[self.id] = value
+
+    @property
+    def descriptor(self) -> np.ndarray:
+        return self._store.descriptor[self.id]
+
+    @descriptor.setter
+    def descriptor(self, value: np.ndarray) -> None:
+        self._store.descriptor[self.id] = value
+
+    @property
+    def min_distance(self) -> float:
+        return float(self._store.min_distance[self.id])
+
+    @min_distance.setter
+    def min_distance(self, value: float) -> None:
+        self._store.min_distance[self.id] = value
+
+    @property
+    def max_distance(self) -> float:
+        return float(self._store.max_distance[self.id])
+
+    @max_distance.setter
+    def max_distance(self, value: float) -> None:
+        self._store.max_distance[self.id] = value
 
     @property
     def found_ratio(self) -> float:
@@ -63,6 +136,7 @@ class Map:
     def __init__(self) -> None:
         self.keyframes: dict[int, KeyFrame] = {}
         self.points: dict[int, MapPoint] = {}
+        self.store = PointStore()
         self.lock = threading.RLock()
         self._next_kf = 0
         self._next_point = 0
@@ -79,7 +153,7 @@ class Map:
         return kf
 
     def add_point(self, position: np.ndarray, descriptor: np.ndarray, first_kf: int) -> MapPoint:
-        point = MapPoint(self._next_point, np.asarray(position, float).copy(), descriptor.copy(), first_kf)
+        point = MapPoint(self.store, self._next_point, position, descriptor, first_kf)
         self._next_point += 1
         self.points[point.id] = point
         return point
@@ -165,9 +239,9 @@ class Map:
         descriptors = np.array([kf.features.descriptors[i] for kf, i in kfs])
         if len(descriptors) > 2:
             distances = hamming_matrix(descriptors, descriptors)
-            point.descriptor = descriptors[int(np.argmin(np.median(distances, axis=1)))].copy()
+            point.descriptor = descriptors[int(np.argmin(np.median(distances, axis=1)))]
         else:
-            point.descriptor = descriptors[0].copy()
+            point.descriptor = descriptors[0]
 
     def update_covisibility(self, kf: KeyFrame) -> None:
         """Recount the points ``kf`` shares with every other keyframe (both directions)."""
@@ -195,8 +269,7 @@ class Map:
 
     def point_array(self) -> tuple[np.ndarray, np.ndarray]:
         ids = np.array(sorted(self.points), dtype=int)
-        positions = np.array([self.points[i].position for i in ids]).reshape(-1, 3)
-        return ids, positions
+        return ids, self.store.position[ids].copy()
 
     # --- persistence --------------------------------------------------------------------
 
@@ -225,7 +298,7 @@ class Map:
             "kf_sizes": np.array([len(k.features) for k in kfs], int),
             "point_ids": point_ids,
             "point_positions": positions,
-            "point_descriptors": np.array([self.points[i].descriptor for i in point_ids], np.uint8).reshape(-1, 32),
+            "point_descriptors": self.store.descriptor[point_ids],
             "point_first_kf": np.array([self.points[i].first_kf for i in point_ids], int),
         }
         for name in ("px", "un_px", "normalised", "octave", "angle", "descriptors"):
@@ -261,7 +334,7 @@ class Map:
             result.keyframes[kf.id] = kf
         for row, point_id in enumerate(data["point_ids"]):
             result.points[int(point_id)] = MapPoint(
-                int(point_id), data["point_positions"][row], data["point_descriptors"][row], int(data["point_first_kf"][row])
+                result.store, int(point_id), data["point_positions"][row], data["point_descriptors"][row], int(data["point_first_kf"][row])
             )
         for kf in result.keyframes.values():
             for index in np.flatnonzero(kf.point_ids >= 0):

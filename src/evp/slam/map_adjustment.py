@@ -25,7 +25,7 @@ def window_problem(slam_map: Map, kf_ids: list[int], point_ids: list[int], fixed
                 sigma.append(scale_factors[features.octave[index]])
     return BundleProblem(
         np.array([slam_map.keyframes[k].T_cw for k in kf_ids]),
-        np.array([slam_map.points[p].position for p in point_ids]),
+        slam_map.store.position[np.asarray(point_ids, int)],
         np.array(pose_index, dtype=int),
         np.array(point_index, dtype=int),
         np.array(observed).reshape(-1, 2),

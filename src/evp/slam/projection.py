@@ -46,14 +46,11 @@ def undistorted_bounds(extractor: OrbExtractor) -> tuple[float, float, float, fl
     return float(un[:, 0].min()), float(un[:, 1].min()), float(un[:, 0].max()), float(un[:, 1].max())
 
 
-def project_points(slam_map: Map, ids: list[int], T_cw: np.ndarray, extractor: OrbExtractor, K: np.ndarray, bounds=None) -> Projection | None:
-    if not ids:
+def project_points(slam_map: Map, ids: np.ndarray | list[int], T_cw: np.ndarray, extractor: OrbExtractor, K: np.ndarray, bounds=None) -> Projection | None:
+    if len(ids) == 0:
         return None
-    points = [slam_map.points[i] for i in ids]
-    positions = np.array([p.position for p in points])
-    normals = np.array([p.normal for p in points])
-    min_d = np.array([p.min_distance for p in points])
-    max_d = np.array([p.max_distance for p in points])
+    store = slam_map.store
+    positions, normals, min_d, max_d = store.position[ids], store.normal[ids], store.min_distance[ids], store.max_distance[ids]
     uv = pinhole_pixels(positions @ T_cw[:3, :3].T + T_cw[:3, 3], K)
     u, v = uv[:, 0], uv[:, 1]
     u_min, v_min, u_max, v_max = bounds if bounds is not None else undistorted_bounds(extractor)

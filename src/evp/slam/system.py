@@ -235,8 +235,7 @@ class SlamSystem:
         return T_cw
 
     def _map_point_arrays(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        points = [self.map.points[int(i)] for i in ids]
-        return np.array([p.position for p in points]).reshape(-1, 3), np.array([p.descriptor for p in points]).reshape(-1, 32)
+        return self.map.store.position[ids], self.map.store.descriptor[ids]
 
     def _optimise(self, features: Features, matched: np.ndarray, T_cw: np.ndarray) -> tuple[np.ndarray, int]:
         """Pose-only optimisation on the current matches; outliers are unmatched."""
@@ -337,14 +336,14 @@ class SlamSystem:
         local = self._local_keyframes(matched)
         # keyframes' point ids always name live points (the Map keeps them in step)
         ids = np.unique(np.concatenate([self.map.keyframes[k].point_ids for k in local])) if local else np.zeros(0, int)
-        ids = ids[(ids >= 0) & ~np.isin(ids, matched[matched >= 0])].tolist()
+        ids = ids[(ids >= 0) & ~np.isin(ids, matched[matched >= 0])]
         projection = project_points(self.map, ids, T_cw, self.extractor, self.K, self.bounds)
         if projection is not None:
-            candidates = [ids[r] for r in projection.rows]
-            for point_id in candidates:
+            candidates = ids[projection.rows]
+            for point_id in candidates.tolist():
                 self.map.points[point_id].visible += 1
             free = np.flatnonzero(matched < 0)
-            descriptors = np.array([self.map.points[i].descriptor for i in candidates])
+            descriptors = self.map.store.descriptor[candidates]
             radius = (
                 np.where(projection.view_cos > 0.998, 2.5, 4.0)
                 * self.settings.local_map_search_radius_px
@@ -354,7 +353,7 @@ class SlamSystem:
             a, b = match_in_window(
                 descriptors, projection.uv, features.descriptors[free], features.un_px[free], radius, TH_HIGH, 0.8, projection.level, features.octave[free]
             )
-            matched[free[b]] = np.array(candidates, dtype=int)[a]
+            matched[free[b]] = candidates[a]
         T_cw, inliers = self._optimise(features, matched, T_cw)
         for point_id in matched[matched >= 0]:
             point = self.map.points.get(int(point_id))

@@ -1,0 +1,53 @@
+"""Guided matching: the k-d tree candidate search must pick exactly the matches a full Hamming
+table with the same window, scale and ratio rules would pick."""
+
+import numpy as np
+import pytest
+
+from evp.vision.matching import NO_MATCH, best_unique, hamming_matrix, hamming_pairs, match_in_window
+
+
+def _dense_window_match(desc_a, xy_a, desc_b, xy_b, radius, max_distance, ratio, octave_a=None, octave_b=None, window=1):
+    distances = hamming_matrix(desc_a, desc_b)
+    radius = np.broadcast_to(np.asarray(radius, float), (len(xy_a),))
+    d2 = ((xy_a[:, None, :] - xy_b[None, :, :]) ** 2).sum(axis=2)
+    far = d2 > (radius * radius)[:, None]
+    if octave_a is not None:
+        far |= np.abs(octave_a[:, None] - octave_b[None, :]) > window
+    distances[far] = NO_MATCH
+    return best_unique(distances, max_distance, ratio)
+
+
+def _scene(rng, n_a, n_b):
+    """Descriptors of b are noisy copies of a's in shuffled order, so many near ties occur."""
+    base = rng.integers(0, 256, (max(n_a, n_b), 32), dtype=np.uint8)
+    desc_a = base[:n_a].copy()
+    desc_b = base[rng.permutation(len(base))[:n_b]].copy()
+    desc_b ^= ((rng.random(desc_b.shape) < 0.05) * rng.integers(0, 256, desc_b.shape)).astype(np.uint8)
+    return desc_a, rng.random((n_a, 2)) * 100, desc_b, rng.random((n_b, 2)) * 100
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_window_matching_equals_the_dense_table(seed):
+    rng = np.random.default_rng(seed)
+    desc_a, xy_a, desc_b, xy_b = _scene(rng, int(rng.integers(0, 250)), int(rng.integers(0, 250)))
+    radius = rng.random(len(xy_a)) * 20 if seed % 2 else 10.0
+    octave_a, octave_b = rng.integers(0, 8, len(xy_a)), rng.integers(0, 8, len(xy_b))
+    for octaves in [(), (octave_a, octave_b)]:
+        expected = _dense_window_match(desc_a, xy_a, desc_b, xy_b, radius, 100, 0.9, *octaves)
+        got = match_in_window(desc_a, xy_a, desc_b, xy_b, radius, 100, 0.9, *octaves)
+        assert np.array_equal(got[0], expected[0]) and np.array_equal(got[1], expected[1])
+
+
+def test_points_behind_the_camera_never_match():
+    rng = np.random.default_rng(1)
+    desc_a, xy_a, desc_b, xy_b = _scene(rng, 50, 50)
+    xy_a[::2] = np.nan
+    rows, _ = match_in_window(desc_a, xy_a, desc_b, xy_b, 30.0, 256, 1.0)
+    assert len(rows) > 0 and np.all(rows % 2 == 1)
+
+
+def test_pairwise_hamming_equals_the_table():
+    rng = np.random.default_rng(2)
+    a, b = rng.integers(0, 256, (30, 32), dtype=np.uint8), rng.integers(0, 256, (30, 32), dtype=np.uint8)
+    assert np.array_equal(hamming_pairs(a, b), np.diag(hamming_matrix(a, b)))

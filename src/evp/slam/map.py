@@ -45,6 +45,8 @@ class PointStore:
     """The per-point numbers tracking reads every frame, as arrays indexed by point id, so that
     thousands of points are gathered with one fancy index instead of a Python loop."""
 
+    COLUMNS = ("position", "normal", "min_distance", "max_distance", "descriptor")
+
     def __init__(self, capacity: int = 1024):
         self.position = np.zeros((capacity, 3))
         self.normal = np.zeros((capacity, 3))
@@ -58,12 +60,27 @@ class PointStore:
         if point_id < capacity:
             return
         grown = max(2 * capacity, point_id + 1)
-        for name in ("position", "normal", "min_distance", "max_distance", "descriptor"):
+        for name in self.COLUMNS:
             old = getattr(self, name)
             new = np.zeros((grown, *old.shape[1:]), old.dtype)
             new[:capacity] = old
             setattr(self, name, new)
         self.max_distance[capacity:] = np.inf
+
+
+class _StoreColumn:
+    """A MapPoint attribute read from and written to its row of one PointStore array (a view for
+    vectors, a float for scalars)."""
+
+    def __init__(self, name: str):
+        self.name = name
+
+    def __get__(self, point: MapPoint, owner: type) -> np.ndarray | float:
+        value = getattr(point._store, self.name)[point.id]
+        return value if np.ndim(value) else float(value)
+
+    def __set__(self, point: MapPoint, value) -> None:
+        getattr(point._store, self.name)[point.id] = value
 
 
 class MapPoint:
@@ -72,6 +89,12 @@ class MapPoint:
     :meth:`Map.add_point`, which may grow the store)."""
 
     __slots__ = ("id", "first_kf", "observations", "visible", "found", "_store")
+
+    position = _StoreColumn("position")
+    normal = _StoreColumn("normal")  # mean viewing direction (unit)
+    descriptor = _StoreColumn("descriptor")
+    min_distance = _StoreColumn("min_distance")
+    max_distance = _StoreColumn("max_distance")
 
     def __init__(self, store: PointStore, point_id: int, position: np.ndarray, descriptor: np.ndarray, first_kf: int):
         self._store = store
@@ -85,47 +108,6 @@ class MapPoint:
         store.descriptor[point_id] = descriptor  # the most representative of its observations
         store.normal[point_id] = 0.0
         store.min_distance[point_id], store.max_distance[point_id] = 0.0, np.inf
-
-    @property
-    def position(self) -> np.ndarray:
-        return self._store.position[self.id]
-
-    @position.setter
-    def position(self, value: np.ndarray) -> None:
-        self._store.position[self.id] = value
-
-    @property
-    def normal(self) -> np.ndarray:
-        """Mean viewing direction (unit)."""
-        return self._store.normal[self.id]
-
-    @normal.setter
-    def normal(self, value: np.ndarray) -> None:
-        self._store.normal[self.id] = value
-
-    @property
-    def descriptor(self) -> np.ndarray:
-        return self._store.descriptor[self.id]
-
-    @descriptor.setter
-    def descriptor(self, value: np.ndarray) -> None:
-        self._store.descriptor[self.id] = value
-
-    @property
-    def min_distance(self) -> float:
-        return float(self._store.min_distance[self.id])
-
-    @min_distance.setter
-    def min_distance(self, value: float) -> None:
-        self._store.min_distance[self.id] = value
-
-    @property
-    def max_distance(self) -> float:
-        return float(self._store.max_distance[self.id])
-
-    @max_distance.setter
-    def max_distance(self, value: float) -> None:
-        self._store.max_distance[self.id] = value
 
     @property
     def found_ratio(self) -> float:

@@ -70,48 +70,43 @@ class OrbExtractor:
         keypoints = self._detector.detect(grey)
         if not keypoints:
             return self._empty()
-        xy = np.array([k.pt for k in keypoints], dtype=float)
-        octave = np.array([k.octave for k in keypoints], dtype=int)
-        response = np.array([k.response for k in keypoints], dtype=float)
+        xy = cv2.KeyPoint_convert(keypoints).astype(float)
+        octave = np.fromiter((k.octave for k in keypoints), int, len(keypoints))
+        response = np.fromiter((k.response for k in keypoints), float, len(keypoints))
         chosen = self._distribute(xy, octave, response)
         keypoints, descriptors = self._detector.compute(grey, [keypoints[i] for i in chosen])
         if descriptors is None or not keypoints:
             return self._empty()
-        px = np.array([k.pt for k in keypoints], dtype=float)
+        px = cv2.KeyPoint_convert(keypoints).astype(float)
         normalised = self.camera.undistort_points(px)
         un_px = normalised * [self.camera.fx, self.camera.fy] + [self.camera.cx, self.camera.cy]
         return Features(
             px,
             un_px,
             normalised,
-            np.array([k.octave for k in keypoints], dtype=int),
-            np.array([k.angle for k in keypoints], dtype=float),
+            np.fromiter((k.octave for k in keypoints), int, len(keypoints)),
+            np.fromiter((k.angle for k in keypoints), float, len(keypoints)),
             descriptors,
         )
 
     def _distribute(self, xy: np.ndarray, octave: np.ndarray, response: np.ndarray) -> np.ndarray:
-        """Indices of the kept keypoints: per level, round robin over grid cells by strength."""
-        kept = []
+        """Indices of the kept keypoints, level by level: round robin over grid cells, strongest
+        first in each cell, until the level's quota is filled."""
         strong = response >= self.settings.ini_fast_threshold
-        for level, quota in enumerate(self.level_quota):
-            rows = np.flatnonzero(octave == level)
-            if len(rows) == 0 or quota == 0:
-                continue
-            cell = CELL_PX * self.scale_factors[level]
-            cx = (xy[rows, 0] // cell).astype(int)
-            cy = (xy[rows, 1] // cell).astype(int)
-            cell_id = cy * 10000 + cx
-            ids_strong = np.unique(cell_id[strong[rows]])
-            cell_has_strong = np.isin(cell_id, ids_strong)
-            usable = strong[rows] | ~cell_has_strong  # weak corners only where the cell has no strong one
-            rows, cell_id = rows[usable], cell_id[usable]
-            order = np.lexsort((-response[rows], cell_id))  # by cell, strongest first
-            sorted_cells = cell_id[order]
-            starts = np.r_[0, np.flatnonzero(np.diff(sorted_cells)) + 1]
-            rank = np.arange(len(order)) - np.repeat(starts, np.diff(np.r_[starts, len(order)]))
-            pick = order[np.lexsort((-response[rows][order], rank))][:quota]
-            kept.append(rows[pick])
-        return np.concatenate(kept) if kept else np.zeros(0, int)
+        cell = CELL_PX * self.scale_factors[octave]
+        cell_id = (octave.astype(np.int64) * 10000 + (xy[:, 1] // cell).astype(np.int64)) * 10000 + (xy[:, 0] // cell).astype(np.int64)
+        usable = strong | ~np.isin(cell_id, cell_id[strong])  # weak corners only where the cell has no strong one
+        rows = np.flatnonzero(usable)
+        cell_id, response, octave = cell_id[rows], response[rows], octave[rows]
+        order = np.lexsort((-response, cell_id))  # by level and cell, strongest first
+        sorted_cells = cell_id[order]
+        starts = np.r_[0, np.flatnonzero(np.diff(sorted_cells)) + 1]
+        rank = np.arange(len(order)) - np.repeat(starts, np.diff(np.r_[starts, len(order)]))
+        order = order[np.lexsort((-response[order], rank, octave[order]))]  # by level, round, strength
+        level = octave[order]
+        level_start = np.searchsorted(level, level)
+        keep = np.arange(len(order)) - level_start < self.level_quota[np.clip(level, 0, len(self.level_quota) - 1)]
+        return rows[order[keep]]
 
     @staticmethod
     def _empty() -> Features:

@@ -1,0 +1,74 @@
+"""The ORB extractor's spatial distribution: per pyramid level, round robin over grid cells."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from evp.config import OrbSettings
+from evp.types import CameraModel
+from evp.vision.orb import CELL_PX, OrbExtractor
+
+
+def _extractor(n_features: int = 500) -> OrbExtractor:
+    camera = CameraModel(width=640, height=480, fx=500.0, fy=500.0, cx=320.0, cy=240.0)
+    return OrbExtractor(OrbSettings(n_features=n_features), camera)
+
+
+def _round_robin(extractor: OrbExtractor, xy: np.ndarray, octave: np.ndarray, response: np.ndarray) -> list[int]:
+    """The rule spelled out with loops: per level, cells with a strong corner offer only strong
+    ones; round k takes every cell's k-th strongest, strongest first (equal scores: by cell, row
+    major); stop at the level's quota."""
+    kept: list[int] = []
+    ini = extractor.settings.ini_fast_threshold
+    for level, quota in enumerate(extractor.level_quota):
+        cells: dict[tuple[int, int], list[int]] = {}
+        cell = CELL_PX * extractor.scale_factors[level]
+        for i in np.flatnonzero(octave == level):
+            cells.setdefault((int(xy[i, 1] // cell), int(xy[i, 0] // cell)), []).append(int(i))
+        queues = []
+        for key, members in cells.items():
+            strong = [i for i in members if response[i] >= ini]
+            queues.append((key, sorted(strong or members, key=lambda i: (-response[i], i))))
+        chosen: list[int] = []
+        for k in range(max((len(q) for _, q in queues), default=0)):
+            chosen += [i for _, i in sorted(((key, q[k]) for key, q in queues if k < len(q)), key=lambda c: (-response[c[1]], c[0]))]
+        kept += chosen[:quota]
+    return kept
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_distribution_follows_the_round_robin_rule(seed):
+    extractor = _extractor()
+    rng = np.random.default_rng(seed)
+    n = 4000
+    octave = rng.integers(0, len(extractor.level_quota), n)
+    xy = rng.uniform(0, [640, 480], (n, 2)) / extractor.scale_factors[octave][:, None]
+    xy[: n // 2] *= 0.3  # crowd half of the corners into one corner of the image
+    response = rng.integers(7, 60, n).astype(float)  # integer FAST scores: ties are common
+    chosen = extractor._distribute(xy, octave, response)
+    assert chosen.tolist() == _round_robin(extractor, xy, octave, response)
+    counts = np.bincount(octave[chosen], minlength=len(extractor.level_quota))
+    assert np.all(counts <= extractor.level_quota)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="known limitation: OpenCV's detect keeps the 3 x n_features strongest FAST corners per level "
+    "before our cell distribution runs, so a faint half of the image next to a strongly textured one "
+    "loses its weak corners (ORB-SLAM runs FAST per cell instead)",
+)
+def test_features_spread_over_the_image_not_only_its_textured_part():
+    rng = np.random.default_rng(3)
+    image = np.full((480, 640), 128, np.uint8)
+    image[:, :320] = rng.integers(0, 256, (480, 320), dtype=np.uint8)  # strong texture on the left
+    right = cv2.GaussianBlur(rng.integers(0, 256, (480, 320), dtype=np.uint8), (0, 0), 2.0)
+    image[:, 320:] = cv2.convertScaleAbs(right, alpha=0.8, beta=26)  # faint: FAST scores under 20 on the right
+    features = _extractor(1000).extract(image)
+    plain = cv2.ORB_create(1000).detect(image)
+    share_right = np.mean(features.px[:, 0] > 340)
+    share_right_plain = np.mean([k.pt[0] > 340 for k in plain])
+    assert len(features) >= 900
+    assert share_right > 0.2
+    assert share_right > 3 * share_right_plain

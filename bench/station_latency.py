@@ -65,7 +65,9 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=20.0, help="seconds of 30 fps video per stream")
     parser.add_argument("--streams", type=int, nargs="+", default=[1, 2, 3])
     parser.add_argument("--estimators", nargs="+", default=["slam", "klt-vo"])
-    parser.add_argument("--source", type=Path, help="a real sequence to stream instead of the rendered circle (e.g. ../shared/data/euroc_mh_01_easy_moving_360)")
+    parser.add_argument(
+        "--source", type=Path, help="a real sequence to stream instead of the rendered circle (e.g. ../shared/data/euroc_mh_01_easy_moving_360)"
+    )
     args = parser.parse_args()
     print(f"command: python bench/station_latency.py {' '.join(sys.argv[1:])}")
     print(

@@ -62,12 +62,14 @@ class LocalMapper:
     # --- steps ----------------------------------------------------------------------------
 
     def _register_observations(self, kf: KeyFrame, matched: np.ndarray) -> None:
+        registered = []
         for index in np.flatnonzero(matched >= 0):
             point = self.map.points.get(int(matched[index]))
             if point is None or kf.id in point.observations:
                 continue
             self.map.add_observation(point, kf, int(index))
-            self.map.update_point_geometry(point, self.extractor.scale_factors)
+            registered.append(point.id)
+        self.map.refresh_points(registered, self.extractor.scale_factors)
 
     def _cull_recent_points(self, kf: KeyFrame) -> None:
         kept = []
@@ -87,6 +89,7 @@ class LocalMapper:
         sigma2 = self.extractor.level_sigma2
         scale = self.extractor.settings.scale_factor
         fx = self.K[0, 0]
+        created: list[int] = []
         for neighbour_id in kf.best_covisible(s.covisible_keyframes):
             nb = self.map.keyframes.get(neighbour_id)
             if nb is None:
@@ -127,8 +130,9 @@ class LocalMapper:
                 point = self.map.add_point(position, fa.descriptors[a], kf.id)
                 self.map.add_observation(point, kf, int(a))
                 self.map.add_observation(point, nb, int(b))
-                self.map.update_point_geometry(point, self.extractor.scale_factors)
-                self.recent_points.append(point.id)
+                created.append(point.id)
+        self.map.refresh_points(created, self.extractor.scale_factors)
+        self.recent_points += created
 
     def _fuse_into_neighbours(self, kf: KeyFrame) -> None:
         """Project the keyframe's points into its neighbours: a match there either adds an
@@ -158,7 +162,7 @@ class LocalMapper:
                 if existing >= 0 and existing in self.map.points:
                     keep, drop = (existing, point.id) if len(self.map.points[existing].observations) >= len(point.observations) else (point.id, existing)
                     self.map.replace_point(drop, keep)
-                    self.map.update_point_geometry(self.map.points[keep], self.extractor.scale_factors)
+                    self.map.refresh_points([keep], self.extractor.scale_factors)
                 else:
                     self.map.add_observation(point, nb, int(index))
 
@@ -185,24 +189,32 @@ class LocalMapper:
     def _cull_keyframes(self, kf: KeyFrame) -> None:
         """Drop neighbours whose points are nearly all seen by 3 other keyframes at the same or a
         finer scale: they add computation, not information."""
+        octaves = {k: other.features.octave for k, other in self.map.keyframes.items()}
         for neighbour_id in kf.best_covisible(self.settings.local_ba_keyframes):
             nb = self.map.keyframes.get(neighbour_id)
             if nb is None or nb.id == 0 or nb.id == kf.id:
                 continue
-            indices = np.flatnonzero(nb.point_ids >= 0)
             total, redundant = 0, 0
-            for index in indices:
+            for index in np.flatnonzero(nb.point_ids >= 0).tolist():
                 point = self.map.points.get(int(nb.point_ids[index]))
                 if point is None:
                     continue
                 total += 1
-                level = nb.features.octave[index]
-                seen = sum(
-                    1 for k, i in point.observations.items() if k != nb.id and k in self.map.keyframes and self.map.keyframes[k].features.octave[i] <= level + 1
-                )
-                redundant += seen >= 3
+                redundant += self._seen_by_three_others(point.observations, nb.id, int(nb.features.octave[index]) + 1, octaves)
             if total and redundant > self.settings.keyframe_redundancy * total:
                 self.map.remove_keyframe(nb.id)
+                del octaves[nb.id]
+
+    @staticmethod
+    def _seen_by_three_others(observations: dict[int, int], kf_id: int, max_octave: int, octaves: dict[int, np.ndarray]) -> bool:
+        seen = 0
+        for other, index in observations.items():
+            octave = octaves.get(other)
+            if other != kf_id and octave is not None and octave[index] <= max_octave:
+                seen += 1
+                if seen == 3:
+                    return True
+        return False
 
 
 def _essential(T1_cw: np.ndarray, T2_cw: np.ndarray) -> np.ndarray:

@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 
 from evp.geometry.transforms import se3_inverse
-from evp.vision.matching import hamming_matrix
 from evp.vision.orb import Features
 
 
@@ -201,29 +200,62 @@ class Map:
 
     # --- derived state ------------------------------------------------------------------
 
-    def update_point_geometry(self, point: MapPoint, scale_factors: np.ndarray, descriptor: bool = True) -> None:
-        """Mean viewing direction and scale-invariance distance range; with ``descriptor``, also
-        the representative descriptor (the one closest to all others, by median distance)."""
-        kfs = [(self.keyframes[k], i) for k, i in point.observations.items() if k in self.keyframes]
-        if not kfs:
-            return
-        rays = point.position - np.array([kf.centre for kf, _ in kfs])
-        rays /= np.maximum(np.sqrt(np.einsum("ij,ij->i", rays, rays)), 1e-12)[:, None]
-        normal = rays.sum(axis=0)
-        point.normal = normal / max(float(np.sqrt(normal @ normal)), 1e-12)
-        first = point.first_kf
-        ref_kf, ref_index = (self.keyframes[first], point.observations[first]) if first in point.observations and first in self.keyframes else kfs[0]
-        offset = point.position - ref_kf.centre
-        point.max_distance = float(np.sqrt(offset @ offset)) * scale_factors[ref_kf.features.octave[ref_index]]
-        point.min_distance = point.max_distance / scale_factors[-1]
+    def refresh_points(self, point_ids: list[int], scale_factors: np.ndarray, descriptor: bool = True) -> None:
+        """:meth:`update_geometry` of the points; with ``descriptor``, also each one's
+        representative descriptor: of its observations' descriptors, the one with the least
+        median Hamming distance to the others (points with as many observations go together)."""
+        self.update_geometry(point_ids, scale_factors)
         if not descriptor:
             return
-        descriptors = np.array([kf.features.descriptors[i] for kf, i in kfs])
-        if len(descriptors) > 2:
-            distances = hamming_matrix(descriptors, descriptors)
-            point.descriptor = descriptors[int(np.argmin(np.median(distances, axis=1)))]
-        else:
-            point.descriptor = descriptors[0]
+        by_count: dict[int, tuple[list[int], list[np.ndarray]]] = {}
+        for point_id in point_ids:
+            rows = [self.keyframes[k].features.descriptors[i] for k, i in self.points[point_id].observations.items() if k in self.keyframes]
+            if rows:
+                ids, stacks = by_count.setdefault(len(rows), ([], []))
+                ids.append(point_id)
+                stacks.append(rows)
+        for count, (ids, stacks) in by_count.items():
+            descriptors = np.array(stacks, np.uint8)  # (points, count, 32)
+            best = np.zeros(len(ids), int)
+            if count > 2:
+                words = descriptors.view(np.uint64)  # (points, count, 4)
+                distances = np.bitwise_count(words[:, :, None, :] ^ words[:, None, :, :]).sum(axis=3)
+                best = np.argmin(np.median(distances, axis=2), axis=1)
+            self.store.descriptor[np.array(ids)] = descriptors[np.arange(len(ids)), best]
+
+    def update_geometry(self, point_ids: list[int], scale_factors: np.ndarray) -> None:
+        """Mean viewing direction and scale-invariance distance range of points, from the
+        keyframes observing them (the range from the first keyframe's view and octave)."""
+        rows, centres, ref_rows, ref_centres, ref_octaves = [], [], [], [], []
+        for row, point_id in enumerate(point_ids):
+            point = self.points[point_id]
+            reference = None
+            for kf_id, index in point.observations.items():
+                kf = self.keyframes.get(kf_id)
+                if kf is None:
+                    continue
+                rows.append(row)
+                centres.append(kf.centre)
+                if reference is None or kf_id == point.first_kf:
+                    reference = (kf, index)
+            if reference is not None:
+                ref_rows.append(row)
+                ref_centres.append(reference[0].centre)
+                ref_octaves.append(reference[0].features.octave[reference[1]])
+        if not rows:
+            return
+        ids = np.asarray(point_ids, int)
+        positions = self.store.position[ids]
+        rows_array = np.array(rows)
+        rays = positions[rows_array] - np.array(centres)
+        rays /= np.maximum(np.sqrt(np.einsum("ij,ij->i", rays, rays)), 1e-12)[:, None]
+        normal = np.stack([np.bincount(rows_array, rays[:, axis], len(ids)) for axis in range(3)], axis=1)
+        observed = np.array(ref_rows)
+        normal = normal[observed]
+        self.store.normal[ids[observed]] = normal / np.maximum(np.linalg.norm(normal, axis=1), 1e-12)[:, None]
+        max_distance = np.linalg.norm(positions[observed] - np.array(ref_centres), axis=1) * scale_factors[np.array(ref_octaves)]
+        self.store.max_distance[ids[observed]] = max_distance
+        self.store.min_distance[ids[observed]] = max_distance / scale_factors[-1]
 
     def update_covisibility(self, kf: KeyFrame) -> None:
         """Recount the points ``kf`` shares with every other keyframe (both directions)."""
@@ -327,7 +359,6 @@ class Map:
                     point.observations[kf.id] = int(index)
         for kf in result.keyframes.values():
             result.update_covisibility(kf)
-        for point in result.points.values():
-            result.update_point_geometry(point, scale_factors)
+        result.refresh_points(list(result.points), scale_factors)
         result._next_kf, result._next_point = meta["next_kf"], meta["next_point"]
         return result

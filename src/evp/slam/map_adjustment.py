@@ -56,6 +56,4 @@ def apply_solution(
         point = slam_map.points.get(point_ids[problem.point_index[n]])
         if point is not None:
             slam_map.remove_observation(point, kf_ids[problem.pose_index[n]])
-    for p in point_ids:
-        if p in slam_map.points:
-            slam_map.update_point_geometry(slam_map.points[p], scale_factors, descriptor=False)
+    slam_map.refresh_points([p for p in point_ids if p in slam_map.points], scale_factors, descriptor=False)

@@ -168,8 +168,7 @@ class SlamSystem:
                 self._discard_map()
                 return None
             self._rescale(s.initial_median_depth_m / depth)
-            for point in self.map.points.values():
-                self.map.update_point_geometry(point, self.extractor.scale_factors)
+            self.map.refresh_points(list(self.map.points), self.extractor.scale_factors)
             self.map.update_covisibility(kf0)
             self.map.update_covisibility(kf1)
         first = self.records[reference.record]

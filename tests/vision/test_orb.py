@@ -8,7 +8,7 @@ import pytest
 
 from evp.config import OrbSettings
 from evp.types import CameraModel
-from evp.vision.orb import CELL_PX, OrbExtractor
+from evp.vision.orb import CELL_PX, EDGE_PX, OrbExtractor, usable_levels
 
 
 def _extractor(n_features: int = 500) -> OrbExtractor:
@@ -72,3 +72,18 @@ def test_features_spread_over_the_image_not_only_its_textured_part():
     assert len(features) >= 900
     assert share_right > 0.2
     assert share_right > 3 * share_right_plain
+
+
+@pytest.mark.parametrize(("size", "expected"), [((240, 180), 6), ((752, 480), 8), ((640, 380), 8), ((1226, 370), 8)])
+def test_pyramid_keeps_only_levels_that_hold_a_grid_cell_inside_the_borders(size, expected):
+    camera = CameraModel(width=size[0], height=size[1], fx=300.0, fy=300.0, cx=size[0] / 2, cy=size[1] / 2)
+    settings = OrbSettings()
+    levels = usable_levels(settings, camera)
+    assert levels == expected
+    coarsest = min(size) / settings.scale_factor ** (levels - 1)
+    assert coarsest >= 2 * EDGE_PX + CELL_PX
+    if levels < settings.pyramid_levels:
+        assert coarsest / settings.scale_factor < 2 * EDGE_PX + CELL_PX
+    assert usable_levels(OrbSettings(pyramid_levels=4), camera) == min(4, expected)
+    extractor = OrbExtractor(settings, camera)
+    assert len(extractor.scale_factors) == len(extractor.level_quota) == levels and extractor.level_quota.sum() == settings.n_features

@@ -13,6 +13,7 @@ from evp.geometry.transforms import nearest_rotation
 
 CHI2_1DOF = 3.841  # 95 % for a point-to-line distance
 CHI2_2DOF = 5.991  # 95 % for a point-to-point distance
+HUBER_DELTA = np.sqrt(CHI2_2DOF)  # robust kernel width on whitened reprojection errors (ORB-SLAM's)
 
 
 def triangulate(T1_cw: np.ndarray, T2_cw: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:

@@ -12,10 +12,8 @@ import cv2
 import numpy as np
 
 from evp.geometry.transforms import nearest_rotation
-from evp.geometry.two_view import CHI2_2DOF
+from evp.geometry.two_view import CHI2_2DOF, HUBER_DELTA
 from evp.slam.projection import reprojection_chi2
-
-HUBER_DELTA = np.sqrt(CHI2_2DOF)
 
 
 def apply_increment(T_cw: np.ndarray, xi: np.ndarray) -> np.ndarray:

@@ -40,11 +40,20 @@ class Features:
         return Features(self.px[rows], self.un_px[rows], self.normalised[rows], self.octave[rows], self.angle[rows], self.descriptors[rows])
 
 
+def usable_levels(settings: OrbSettings, camera: CameraModel) -> int:
+    """Pyramid levels to use: at most ``settings.pyramid_levels``, and only levels whose shorter
+    side still holds one grid cell inside the FAST/ORB borders. On a small sensor (240x180) the
+    coarsest of 8 levels is a few pixels of usable image; its quota goes to finer levels instead."""
+    short_side = min(camera.width, camera.height)
+    fitting = int(np.floor(np.log(short_side / (2 * EDGE_PX + CELL_PX)) / np.log(settings.scale_factor))) + 1
+    return int(np.clip(fitting, 1, settings.pyramid_levels))
+
+
 class OrbExtractor:
     def __init__(self, settings: OrbSettings, camera: CameraModel):
         self.settings = settings
         self.camera = camera
-        levels = settings.pyramid_levels
+        levels = usable_levels(settings, camera)
         self.scale_factors = settings.scale_factor ** np.arange(levels)
         self.level_sigma2 = self.scale_factors**2
         self.inv_level_sigma2 = 1.0 / self.level_sigma2

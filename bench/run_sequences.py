@@ -1,7 +1,7 @@
 """`evp run` on every shared image sequence with ground truth, plus a rendered seed-000 circle at
 640x380: one Markdown table (the SLAM issue's bench).
 
-Usage: python bench/run_sequences.py [--out runs/bench] [--estimator auto|slam|klt-vo]
+Usage: python bench/run_sequences.py [--out runs/bench] [--estimator auto|slam|klt-vo] [--only NAME ...]
 
 Also: relocalisation on EuRoC MH01 after a forced loss (`evp.slam.trials`).
 
@@ -75,20 +75,24 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--out", type=Path, default=Path("runs/bench"))
     parser.add_argument("--estimator", default="auto", choices=["auto", "slam", "klt-vo"])
+    parser.add_argument("--only", nargs="+", choices=SEQUENCES, help="just these shared sequences (no relocalisation, no circle)")
     args = parser.parse_args()
     settings = Settings(estimator=args.estimator)
-    print(f"command: python bench/run_sequences.py --out {args.out} --estimator {args.estimator}  ({platform.node()}, {platform.machine()})\n")
+    only = f" --only {' '.join(args.only)}" if args.only else ""
+    print(f"command: python bench/run_sequences.py --out {args.out} --estimator {args.estimator}{only}  ({platform.node()}, {platform.machine()})\n")
     print(
         "| sequence | estimator | ATE Sim3 (m) | ATE / path | tracked | frames to initialise | ms/frame median | p95 | ratio to OpenCV ORB | mapping ms/keyframe | peak memory so far (MB) |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|---|")
-    for name in SEQUENCES:
+    for name in args.only or SEQUENCES:
         path = SHARED / name
         if not path.exists():
             print(f"| {name} | missing | | | | | | | | | |")
             continue
         print(_row(name, path, settings, args.out))
         sys.stdout.flush()
+    if args.only:
+        return
     euroc = SHARED / SEQUENCES[0]
     if euroc.exists():
         print("\n| relocalisation after a covered lens | frames to relocalise | position vs first pass (map units) | rotation (deg) |")

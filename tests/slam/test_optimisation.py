@@ -50,3 +50,27 @@ def test_bundle_adjustment_recovers_perturbed_poses_and_points():
     assert np.abs(poses - truth).max() < 1e-6
     assert np.abs(refined - points).max() < 1e-5
     assert chi2.max() < 1e-6
+
+
+def test_bundle_adjustment_flags_moderate_outliers_and_ends_exact():
+    """Mismatches of 7 pixels pass the first round's gross-error gate (10x the chi-square bound);
+    the outlier rounds must still flag every one and leave an exact solution on the rest."""
+    rng = np.random.default_rng(2)
+    points = rng.uniform([-2, -2, 4], [2, 2, 8], (300, 3))
+    truth = np.array([_pose([0.02 * k, -0.01 * k, 0.0], [-0.15 * k, 0.03 * k, 0.0]) for k in range(6)])
+    pose_index = np.repeat(np.arange(6), len(points))
+    point_index = np.tile(np.arange(len(points)), 6)
+    observed = np.vstack([_project(T, points) for T in truth])
+    bad = rng.choice(np.flatnonzero(pose_index >= 2), 60, replace=False)
+    directions = rng.normal(size=(60, 2))
+    observed[bad] += 7.0 * directions / np.linalg.norm(directions, axis=1)[:, None]  # chi2 49: inside 10 x 5.991
+    perturbed = truth.copy()
+    for T in perturbed[2:]:
+        T[:3, 3] += rng.normal(0, 0.005, 3)
+    fixed = np.array([True, True, False, False, False, False])
+    problem = BundleProblem(perturbed, points, pose_index, point_index, observed, np.ones(len(observed)), fixed, K)
+    poses, refined, chi2 = bundle_adjust(problem, evaluations=20)
+    assert np.abs(poses - truth).max() < 1e-6
+    assert np.all(chi2[bad] > 5.991)
+    good = np.setdiff1d(np.arange(len(observed)), bad)
+    assert np.all(chi2[good] < 5.991)

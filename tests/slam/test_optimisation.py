@@ -33,13 +33,19 @@ def test_pose_optimisation_is_exact_and_flags_outliers():
     assert not inlier[:20].any() and inlier[20:].all()
 
 
-def test_bundle_adjustment_recovers_perturbed_poses_and_points():
-    rng = np.random.default_rng(1)
+def _six_views(rng: np.random.Generator):
+    """300 points seen exactly by 6 poses moving sideways: points, poses, pose and point index of
+    each observation, observed pixels."""
     points = rng.uniform([-2, -2, 4], [2, 2, 8], (300, 3))
     truth = np.array([_pose([0.02 * k, -0.01 * k, 0.0], [-0.15 * k, 0.03 * k, 0.0]) for k in range(6)])
     pose_index = np.repeat(np.arange(6), len(points))
     point_index = np.tile(np.arange(len(points)), 6)
-    observed = np.vstack([_project(T, points) for T in truth])
+    return points, truth, pose_index, point_index, np.vstack([_project(T, points) for T in truth])
+
+
+def test_bundle_adjustment_recovers_perturbed_poses_and_points():
+    rng = np.random.default_rng(1)
+    points, truth, pose_index, point_index, observed = _six_views(rng)
     perturbed = truth.copy()
     for T in perturbed[2:]:
         T[:3, :3] = Rotation.from_rotvec(rng.normal(0, 0.005, 3)).as_matrix() @ T[:3, :3]
@@ -56,11 +62,7 @@ def test_bundle_adjustment_flags_moderate_outliers_and_ends_exact():
     """Mismatches of 7 pixels pass the first round's gross-error gate (10x the chi-square bound);
     the outlier rounds must still flag every one and leave an exact solution on the rest."""
     rng = np.random.default_rng(2)
-    points = rng.uniform([-2, -2, 4], [2, 2, 8], (300, 3))
-    truth = np.array([_pose([0.02 * k, -0.01 * k, 0.0], [-0.15 * k, 0.03 * k, 0.0]) for k in range(6)])
-    pose_index = np.repeat(np.arange(6), len(points))
-    point_index = np.tile(np.arange(len(points)), 6)
-    observed = np.vstack([_project(T, points) for T in truth])
+    points, truth, pose_index, point_index, observed = _six_views(rng)
     bad = rng.choice(np.flatnonzero(pose_index >= 2), 60, replace=False)
     directions = rng.normal(size=(60, 2))
     observed[bad] += 7.0 * directions / np.linalg.norm(directions, axis=1)[:, None]  # chi2 49: inside 10 x 5.991

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from evp.geometry.transforms import se3_inverse
+from evp.vision.matching import hamming_pairs
 from evp.vision.orb import Features
 
 
@@ -218,8 +219,10 @@ class Map:
             descriptors = np.array(stacks, np.uint8)  # (points, count, 32)
             best = np.zeros(len(ids), int)
             if count > 2:
-                words = descriptors.view(np.uint64)  # (points, count, 4)
-                distances = np.bitwise_count(words[:, :, None, :] ^ words[:, None, :, :]).sum(axis=3)
+                pairs = (len(ids), count, count, 32)
+                a = np.broadcast_to(descriptors[:, :, None, :], pairs).reshape(-1, 32)
+                b = np.broadcast_to(descriptors[:, None, :, :], pairs).reshape(-1, 32)
+                distances = hamming_pairs(a, b).reshape(pairs[:3])
                 best = np.argmin(np.median(distances, axis=2), axis=1)
             self.store.descriptor[np.array(ids)] = descriptors[np.arange(len(ids)), best]
 

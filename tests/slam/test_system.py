@@ -80,3 +80,20 @@ def test_bad_frames_raise_specific_errors_and_tracking_goes_on(circle):
         slam.feed(Frame(0.0, np.zeros((10, 10), np.uint8), 0))
     estimates = [slam.feed(frame) for frame in frames[:40]]
     assert estimates[-1].tracking_state == TrackingState.OK
+
+
+def test_tracks_a_stream_that_drops_frames(circle):
+    """A live link drops frames when the estimator is busy: irregular gaps of 1-4 frames, which the
+    constant-velocity model spans by the time since the last tracked frame."""
+    dataset, frames = circle
+    gaps = [1, 2, 4, 3]
+    kept, index = [], 0
+    while index < len(frames):
+        kept.append(frames[index])
+        index += gaps[len(kept) % len(gaps)]
+    slam = _system(dataset)
+    estimates = [slam.feed(frame) for frame in kept]
+    slam.finish()
+    moving = [e for f, e in zip(kept, estimates, strict=True) if f.timestamp - frames[0].timestamp > 2.0]
+    assert sum(e.tracking_state == TrackingState.OK for e in moving) >= 0.9 * len(moving)
+    assert _ate(dataset, slam) < 0.03

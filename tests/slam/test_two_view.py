@@ -58,3 +58,23 @@ def test_pure_rotation_is_refused():
     R21 = Rotation.from_euler("y", 3.0, degrees=True).as_matrix()
     x1, x2 = _views(points, R21, np.zeros(3), 0.3, 450.0)
     assert initial_two_view(x1, x2, 450.0) is None
+
+
+def test_initial_map_keeps_distant_points_with_low_but_real_parallax():
+    """A short baseline over near and distant points (a slider, or a drone over a valley): the far
+    points, 0.4-1.1 degrees of parallax, join the initial map (ORB-SLAM's limit, 0.36 degrees), so
+    tracking has them at the start; points beyond that stay out (they are directions, not positions).
+    Exact views: with noise the RANSAC model's rotation error inflates distant points' parallax (as
+    in ORB-SLAM, which classifies on the same model)."""
+    rng = np.random.default_rng(3)
+    near = rng.uniform([-2, -1.5, 4], [2, 1.5, 6], (200, 3))
+    far = rng.uniform([-10, -7, 28], [10, 7, 32], (150, 3))  # ~0.55 deg with 0.3 m of baseline
+    very_far = rng.uniform([-40, -30, 150], [40, 30, 160], (100, 3))  # ~0.11 deg
+    points = np.vstack([near, far, very_far])
+    R21 = Rotation.from_euler("xyz", [0.5, -1.0, 0.3], degrees=True).as_matrix()
+    x1, x2 = _views(points, R21, np.array([-0.3, 0.02, 0.0]), 0.0, 450.0)
+    result = initial_two_view(x1, x2, 450.0)
+    assert result is not None and result.model == "fundamental"
+    assert result.good[:200].mean() > 0.95
+    assert result.good[200:350].mean() > 0.8
+    assert result.good[350:].mean() < 0.05

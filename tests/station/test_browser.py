@@ -40,7 +40,10 @@ def test_phone_page_streams_and_operator_sees_the_trajectory(tmp_path, station_d
     dataset = open_dataset(SAMPLE)
     camera = dataset.camera
     video = tmp_path / "sample.y4m"
-    write_y4m(video, [frame.image for frame in dataset.frames()], fps=25)
+    # played at a rate a loaded 2-core runner keeps up with beside the browser: this test is about
+    # the pages and the link; tracking through dropped frames is measured on its own
+    fps = 5
+    write_y4m(video, [frame.image for frame in dataset.frames()], fps=fps)
     ARTIFACTS.mkdir(exist_ok=True)
     args = ["--use-fake-ui-for-media-stream", "--use-fake-device-for-media-stream", f"--use-file-for-fake-video-capture={video}", "--no-sandbox"]
     token = "t0ken"  # the operator page and the phone page carry it, as the QR code and the banner give them
@@ -54,7 +57,7 @@ def test_phone_page_streams_and_operator_sees_the_trajectory(tmp_path, station_d
         form = "#camera-form"
         for name in ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"):
             operator.fill(f"{form} [name={name}]", str(getattr(camera, name)))
-        operator.fill(f"{form} [name=fps]", "25")
+        operator.fill(f"{form} [name=fps]", str(fps))
         operator.click(f"{form} button[value=ok]")
         operator.click("#configure")
         operator.wait_for_function("document.getElementById('configure-result').textContent.startsWith('stored')")

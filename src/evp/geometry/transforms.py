@@ -35,6 +35,16 @@ def skew(v: np.ndarray) -> np.ndarray:
     return out
 
 
+def scale_motion(T: np.ndarray, factor: float) -> np.ndarray:
+    """A rigid motion stretched over ``factor`` times its time step: rotation angle and translation
+    both times ``factor`` (rotation and translation scaled apart, which for inter-frame motions
+    differs from the screw motion only at second order)."""
+    out = np.eye(4)
+    out[:3, :3] = Rotation.from_rotvec(factor * Rotation.from_matrix(T[:3, :3]).as_rotvec()).as_matrix()
+    out[:3, 3] = factor * T[:3, 3]
+    return out
+
+
 def se3_inverse(T: np.ndarray) -> np.ndarray:
     """Inverse of a rigid transform (or a stack of them, shape (..., 4, 4))."""
     R = T[..., :3, :3]

@@ -14,6 +14,8 @@ from evp.geometry.transforms import nearest_rotation
 CHI2_1DOF = 3.841  # 95 % for a point-to-line distance
 CHI2_2DOF = 5.991  # 95 % for a point-to-point distance
 HUBER_DELTA = np.sqrt(CHI2_2DOF)  # robust kernel width on whitened reprojection errors (ORB-SLAM's)
+NEW_POINT_PARALLAX_COS = 0.9998  # ~1.1 deg: a point triangulated from two keyframes
+INITIAL_POINT_PARALLAX_COS = 0.99998  # ~0.36 deg: a point of the initial map (ORB-SLAM's CheckRT)
 
 
 def triangulate(T1_cw: np.ndarray, T2_cw: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
@@ -32,7 +34,7 @@ def check_points(
     focal: float,
     sigma2_1: np.ndarray | float = 1.0,
     sigma2_2: np.ndarray | float = 1.0,
-    min_parallax_cos: float = 0.9998,
+    min_parallax_cos: float = NEW_POINT_PARALLAX_COS,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Mask of points in front of both cameras, reprojecting within chi-square bounds, seen with
     enough parallax; and the cosine of each point's parallax angle."""
@@ -112,14 +114,18 @@ def _best_motion(
         good, cos = check_points(points, T1, T2, x1, x2, focal, 4.0, 4.0, min_parallax_cos=1.0)
         good &= inlier
         parallax = float(np.degrees(np.arccos(np.clip(np.sort(cos[good])[min(50, good.sum() - 1)], -1, 1)))) if good.sum() else 0.0
-        results.append((int(good.sum()), parallax, T2, points, good))
+        results.append((int(good.sum()), parallax, T2, points, good, cos))
     results.sort(key=lambda r: -r[0])
-    n_good, parallax, T2, points, good = results[0]
+    n_good, parallax, T2, points, good, cos = results[0]
     second = results[1][0] if len(results) > 1 else 0
     if n_good < max(min_triangulated, int(0.9 * inlier.sum())) or second > ambiguity_ratio * n_good or parallax < min_parallax_deg:
         return None
-    # keep only points with real parallax: the rest are directions, not positions
-    good &= check_points(points, T1, T2, x1, x2, focal, 4.0, 4.0)[0]
+    # Points are kept down to ORB-SLAM's initial parallax limit (its CheckRT, on the RANSAC model):
+    # at first they are all tracking has; lower-parallax points are directions, not positions.
+    # Enough of them must have the parallax later triangulation needs, or initialisation waits.
+    if (good & (cos < NEW_POINT_PARALLAX_COS)).sum() < min_triangulated:
+        return None
+    good &= check_points(points, T1, T2, x1, x2, focal, 4.0, 4.0, INITIAL_POINT_PARALLAX_COS)[0]
     T2, points[good] = _refine(T2, points[good], x1[good], x2[good], focal)
     return TwoViewResult(T2, points, good, model, parallax)
 

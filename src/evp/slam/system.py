@@ -293,10 +293,11 @@ class SlamSystem:
 
     def _predicted_motion(self, dt: float) -> np.ndarray:
         """Constant velocity over ``dt``: a live stream drops frames, so the last motion is
-        stretched to the time since the last tracked frame (at most 10 times)."""
+        stretched to the time since the last tracked frame (at most 10 times; never backwards,
+        should a caller repeat a timestamp)."""
         if self._velocity_dt <= 0 or abs(dt - self._velocity_dt) < 0.05 * self._velocity_dt:
             return self._velocity
-        return scale_motion(self._velocity, min(dt / self._velocity_dt, 10.0))
+        return scale_motion(self._velocity, float(np.clip(dt / self._velocity_dt, 0.0, 10.0)))
 
     def _track_reference_keyframe(self, features: Features, matched: np.ndarray) -> np.ndarray | None:
         kf = self.map.keyframes.get(self._reference_kf)

@@ -106,8 +106,7 @@ class NadirHomographyOdometry:
         centre, x_end = _apply(self._image_to_mosaic, np.array([[c.cx, c.cy], [c.cx + 1.0, c.cy]]))
         x_axis = x_end - centre
         corners = _apply(self._image_to_mosaic, np.array([[0.0, 0.0], [c.width, 0.0], [c.width, c.height], [0.0, c.height]]))
-        area = 0.5 * abs(np.dot(corners[:, 0], np.roll(corners[:, 1], 1)) - np.dot(corners[:, 1], np.roll(corners[:, 0], 1)))  # shoelace
-        scale = float(np.sqrt(area / (c.width * c.height)))
+        scale = float(np.sqrt(cv2.contourArea(corners.astype(np.float32)) / (c.width * c.height)))
         heading = float(np.arctan2(-x_axis[1], x_axis[0]))
         position = np.array([centre[0] - c.cx, -(centre[1] - c.cy), c.fx * scale])
         yaw = np.array([[np.cos(heading), -np.sin(heading), 0.0], [np.sin(heading), np.cos(heading), 0.0], [0.0, 0.0, 1.0]])

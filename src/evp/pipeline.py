@@ -17,7 +17,7 @@ import numpy as np
 
 from evp.config import Settings, write_settings
 from evp.errors import DatasetError, EvaluationError, EvpError
-from evp.estimator import Estimator
+from evp.estimator import Estimator, Refining
 from evp.io.dataset import Dataset
 from evp.io.trajectory import Trajectory, write_trajectory
 from evp.types import PoseEstimate, TrackingState
@@ -35,6 +35,7 @@ class RunResult:
     skipped: list[str] = field(default_factory=list)  # why frames were not used
     reference_orb_ms: list[float] = field(default_factory=list)  # OpenCV ORB on the same frames
     slam: SlamSystem | None = None  # the engine, when the estimator builds a map
+    refiner: Refining | None = None  # the estimator, when it can refine its trajectory at the end
 
     @property
     def tracked(self) -> list[PoseEstimate]:
@@ -65,10 +66,11 @@ class RunResult:
         return next((i for i, e in enumerate(self.estimates) if e.tracking_state in TRACKED_STATES), None)
 
     def final_trajectory(self) -> Trajectory:
-        """The SLAM trajectory through the final (bundle-adjusted) keyframes; else the live one."""
-        if self.slam is None:
+        """The estimator's refined trajectory when it offers one (SLAM through the final
+        bundle-adjusted keyframes, a photo survey adjusted as a whole); else the live one."""
+        if self.refiner is None:
             return self.trajectory()
-        stamps, poses = self.slam.refined_trajectory()
+        stamps, poses = self.refiner.refined_trajectory()
         return Trajectory.from_poses(poses, stamps, "estimate")
 
 
@@ -80,7 +82,7 @@ def run_dataset(dataset: Dataset, estimator: Estimator, progress: Callable[[int]
     """
     from evp.slam.system import SlamSystem
 
-    result = RunResult(slam=estimator if isinstance(estimator, SlamSystem) else None)
+    result = RunResult(slam=estimator if isinstance(estimator, SlamSystem) else None, refiner=estimator if isinstance(estimator, Refining) else None)
     reference_orb = cv2.ORB_create(reference_orb_features) if reference_orb_features else None
     errors: list[DatasetError] = []
     last_stamp = -np.inf
@@ -144,14 +146,15 @@ def _max_time_difference(dataset: Dataset) -> float:
 
 def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: Path) -> dict:
     """trajectory.tum, states.csv, timing.json, metrics.json (+ plots) when ground truth exists,
-    settings.yaml; for SLAM also keyframes.tum, map.ply, map.npz and trajectory_live.tum (the
-    poses as answered live, before later bundle adjustment refined the keyframes)."""
+    settings.yaml; trajectory_live.tum (the poses as answered live) when trajectory.tum holds a
+    refined trajectory; for SLAM also keyframes.tum, map.ply and map.npz."""
     out.mkdir(parents=True, exist_ok=True)
     write_settings(settings, out)
     trajectory = result.final_trajectory()
     write_trajectory(out / "trajectory.tum", trajectory)
-    if result.slam is not None:
+    if result.refiner is not None:
         write_trajectory(out / "trajectory_live.tum", result.trajectory())
+    if result.slam is not None:
         stamps, poses = result.slam.keyframe_trajectory()
         write_trajectory(out / "keyframes.tum", Trajectory.from_poses(poses, stamps, "keyframes"))
         result.slam.map.write_ply(out / "map.ply")

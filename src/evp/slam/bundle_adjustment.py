@@ -161,13 +161,16 @@ def _solve(problem: BundleProblem, active: np.ndarray, iterations: int, robust: 
     return BundleProblem(poses, points, problem.pose_index, problem.point_index, problem.observed, problem.sigma, problem.fixed, problem.K)
 
 
-def bundle_adjust(problem: BundleProblem, evaluations: int = 6, outlier_rounds: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def bundle_adjust(
+    problem: BundleProblem, evaluations: int = 6, outlier_rounds: int = 2, first_gate_chi2: float = 10 * CHI2_2DOF
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Optimised poses (P, 4, 4) ``T_cw``, points (M, 3), and per-observation chi-square errors.
 
-    Each round runs up to ``evaluations`` Levenberg-Marquardt iterations on the observations
-    still inlying, then re-classifies all of them."""
+    The first round uses the observations under ``first_gate_chi2`` at the start (gross
+    outliers out; infinite when the start is too rough to tell); each round runs up to
+    ``evaluations`` Levenberg-Marquardt iterations, then re-classifies all observations."""
     chi2 = observation_chi2(problem, problem.poses, problem.points)
-    active = chi2 < 10 * CHI2_2DOF
+    active = chi2 < first_gate_chi2
     for round_index in range(outlier_rounds):
         if active.sum() < 6:
             break

@@ -18,16 +18,20 @@ import numpy as np
 
 from evp.geometry.transforms import se3
 from evp.types import CameraModel, Frame, PoseEstimate, TrackingState
+from evp.vo.survey_adjustment import adjust_survey, tracks_from_matches
 
 NADIR = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])  # camera looking down, image x = world x
 
 
 @dataclass
 class _Placed:
+    timestamp: float
+    pixels: np.ndarray  # keypoints as detected (distorted pixels)
     points_mosaic: np.ndarray  # keypoints mapped into the mosaic frame
     descriptors: np.ndarray
     centre_mosaic: np.ndarray
     footprint: float  # image diagonal in mosaic pixels
+    T_world_cam: np.ndarray  # as answered live
 
 
 def _apply(H: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -46,68 +50,105 @@ class NadirHomographyOdometry:
         self._detector = cv2.SIFT_create(nfeatures=max_features)
         self._matcher = cv2.FlannBasedMatcher({"algorithm": 1, "trees": 4}, {"checks": 64})  # KD-trees: SIFT matching in ms
         self._placed: list[_Placed] = []
-        self._image_to_mosaic = np.eye(3)
+        self._matches: list[tuple[int, int, np.ndarray]] = []  # (photo, earlier photo, keypoint pairs)
+        self.lens = camera  # the lens model the survey adjustment settled on
         self._lost = False
 
     def _features(self, frame: Frame) -> tuple[np.ndarray, np.ndarray | None]:
         grey = frame.image if frame.image.ndim == 2 else cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY)
         keypoints, descriptors = self._detector.detectAndCompute(grey, None)
-        points = np.array([k.pt for k in keypoints]).reshape(-1, 2)
-        return (self.camera.undistort_pixels(points) if len(points) else points), descriptors
+        return np.array([k.pt for k in keypoints]).reshape(-1, 2), descriptors
 
-    def _candidates(self) -> list[_Placed]:
-        """The last few images, plus earlier ones near where the new image should land."""
-        recent = self._placed[-self.recent :]
-        if len(self._placed) < 2:
+    def _candidates(self) -> list[int]:
+        """Indices of the last few images, plus earlier ones near where the new image should land."""
+        count = len(self._placed)
+        recent = list(range(max(0, count - self.recent), count))
+        if count < 2:
             return recent
         last, before = self._placed[-1], self._placed[-2]
         predicted = 2 * last.centre_mosaic - before.centre_mosaic  # constant velocity
-        near = [p for p in self._placed[: -self.recent] if np.linalg.norm(p.centre_mosaic - predicted) < 0.6 * last.footprint]
+        near = [i for i in range(count - len(recent)) if np.linalg.norm(self._placed[i].centre_mosaic - predicted) < 0.6 * last.footprint]
         return near + recent
 
     def feed(self, frame: Frame) -> PoseEstimate:
         cv2.setRNGSeed(len(self._placed))  # FLANN's randomised trees and RANSAC: identical replays
-        points, descriptors = self._features(frame)
-        if descriptors is None or len(points) < self.min_inliers:
+        pixels, descriptors = self._features(frame)
+        if descriptors is None or len(pixels) < self.min_inliers:
             self._lost = bool(self._placed)
             return self._estimate(frame, TrackingState.LOST if self._placed else TrackingState.NOT_INITIALIZED, 0)
+        points = self.camera.undistort_pixels(pixels)
         if not self._placed:
-            self._place(points, descriptors, np.eye(3))
+            self._place(frame.timestamp, pixels, points, descriptors, np.eye(3), [])
             return self._estimate(frame, TrackingState.OK, 100)
-        source, target = [], []
-        for placed in self._candidates():
-            pairs = self._matcher.knnMatch(descriptors, placed.descriptors, k=2)
+        candidates = self._candidates()
+        query, train = [], []
+        for index in candidates:
+            pairs = self._matcher.knnMatch(descriptors, self._placed[index].descriptors, k=2)
             good = [m for m, n in (p for p in pairs if len(p) == 2) if m.distance < 0.75 * n.distance]
-            source.append(points[[m.queryIdx for m in good]])
-            target.append(placed.points_mosaic[[m.trainIdx for m in good]])
-        source, target = np.vstack(source), np.vstack(target)
+            query.append(np.array([m.queryIdx for m in good], dtype=int))
+            train.append(np.array([m.trainIdx for m in good], dtype=int))
+        source = points[np.concatenate(query)]
+        target = np.vstack([self._placed[i].points_mosaic[t] for i, t in zip(candidates, train)])
         H, inliers = cv2.findHomography(source, target, cv2.RANSAC, 3.0) if len(source) >= self.min_inliers else (None, None)
         if H is None or inliers.sum() < self.min_inliers:
             self._lost = True
             return self._estimate(frame, TrackingState.LOST, 0)
-        self._place(points, descriptors, H)
+        inlier_runs = np.split(inliers.ravel().astype(bool), np.cumsum([len(q) for q in query])[:-1])
+        matches = [(i, np.column_stack([q[ok], t[ok]])) for i, q, t, ok in zip(candidates, query, train, inlier_runs)]
+        self._place(frame.timestamp, pixels, points, descriptors, H, matches)
         state = TrackingState.RELOCALIZED if self._lost else TrackingState.OK
         self._lost = False
         return self._estimate(frame, state, int(min(100, inliers.sum() / 5)))
 
-    def _place(self, points: np.ndarray, descriptors: np.ndarray, H: np.ndarray) -> None:
+    def _place(
+        self, timestamp: float, pixels: np.ndarray, points: np.ndarray, descriptors: np.ndarray, H: np.ndarray, matches: list[tuple[int, np.ndarray]]
+    ) -> None:
+        """Add the photo (keypoints as detected and undistorted) to the mosaic; ``matches`` pair its
+        keypoints with earlier photos' (their index, then [this photo's keypoint, theirs] rows)."""
         c = self.camera
-        self._image_to_mosaic = H
         corners = _apply(H, np.array([[0.0, 0.0], [c.width, c.height]]))
-        self._placed.append(_Placed(_apply(H, points), descriptors, _apply(H, np.array([[c.cx, c.cy]]))[0], float(np.linalg.norm(corners[1] - corners[0]))))
+        image = len(self._placed)
+        self._matches += [(image, earlier, pairs) for earlier, pairs in matches]
+        self._placed.append(
+            _Placed(
+                timestamp,
+                pixels,
+                _apply(H, points),
+                descriptors,
+                _apply(H, np.array([[c.cx, c.cy]]))[0],
+                float(np.linalg.norm(corners[1] - corners[0])),
+                self._pose(H),
+            )
+        )
 
-    def _estimate(self, frame: Frame, state: TrackingState, quality: int) -> PoseEstimate:
+    def refined_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        """Timestamps and camera-to-world poses of the placed photos after adjusting them all
+        together (``survey_adjustment``; the lens's k1 too when the camera has no lens model).
+        Seconds for a survey of dozens of photos, so the pipeline asks for it once, offline."""
+        stamps = np.array([p.timestamp for p in self._placed])
+        poses = np.array([p.T_world_cam for p in self._placed]).reshape(-1, 4, 4)
+        if len(self._placed) < 2:
+            return stamps, poses
+        tracks = tracks_from_matches([p.pixels for p in self._placed], self._matches)
+        adjusted, self.lens = adjust_survey(self.camera, poses, tracks)
+        return stamps, adjusted
+
+    def _pose(self, H: np.ndarray) -> np.ndarray:
         """Camera pose from where the image centre and its x axis land in the mosaic, and the
         height from the footprint's area: mosaic pixels per image pixel are the height ratio to
         the first image. The whole footprint's area rather than one axis's length at the centre:
         it averages the homography's noisy perspective terms (uncalibrated lens, uneven ground)
         over the image and counts both axes (Toledo survey: 5.1 m against 6.1 m of ATE)."""
         c = self.camera
-        centre, x_end = _apply(self._image_to_mosaic, np.array([[c.cx, c.cy], [c.cx + 1.0, c.cy]]))
+        centre, x_end = _apply(H, np.array([[c.cx, c.cy], [c.cx + 1.0, c.cy]]))
         x_axis = x_end - centre
-        corners = _apply(self._image_to_mosaic, np.array([[0.0, 0.0], [c.width, 0.0], [c.width, c.height], [0.0, c.height]]))
+        corners = _apply(H, np.array([[0.0, 0.0], [c.width, 0.0], [c.width, c.height], [0.0, c.height]]))
         scale = float(np.sqrt(cv2.contourArea(corners.astype(np.float32)) / (c.width * c.height)))
         heading = float(np.arctan2(-x_axis[1], x_axis[0]))
         position = np.array([centre[0] - c.cx, -(centre[1] - c.cy), c.fx * scale])
         yaw = np.array([[np.cos(heading), -np.sin(heading), 0.0], [np.sin(heading), np.cos(heading), 0.0], [0.0, 0.0, 1.0]])
-        return PoseEstimate(frame.timestamp, se3(yaw @ NADIR, position), state, quality)
+        return se3(yaw @ NADIR, position)
+
+    def _estimate(self, frame: Frame, state: TrackingState, quality: int) -> PoseEstimate:
+        pose = self._placed[-1].T_world_cam if self._placed else self._pose(np.eye(3))
+        return PoseEstimate(frame.timestamp, pose, state, quality)

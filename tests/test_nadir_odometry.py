@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from evp.calib.camera_files import read_camera
 from evp.config import Settings
 from evp.io.registry import open_dataset
 from evp.pipeline import run_dataset, write_outputs
@@ -82,3 +83,5 @@ def test_real_survey_meets_the_target(tmp_path):
     assert metrics["tracked_fraction"] >= 0.9
     assert metrics["rmse"] <= 5.0 * 1.05
     assert (tmp_path / "trajectory_live.tum").is_file()
+    lens = read_camera(tmp_path / "camera_estimated.yaml")  # the nominal EXIF camera plus the estimated k1
+    assert lens.fx == dataset.camera.fx and lens.k1 != 0.0

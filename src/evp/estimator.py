@@ -6,7 +6,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from evp.types import Frame, PoseEstimate
+from evp.types import CameraModel, Frame, PoseEstimate
 
 
 class Estimator(Protocol):
@@ -23,3 +23,10 @@ class Refining(Protocol):
     def refined_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         """Timestamps (N,) and ``T_world_cam`` (N, 4, 4) of the frames it localised."""
         ...
+
+
+@runtime_checkable
+class SelfCalibrating(Protocol):
+    """An estimator that estimates part of the lens model from the images themselves."""
+
+    lens: CameraModel  # the lens model it settled on (after ``refined_trajectory`` for a survey)

@@ -17,7 +17,7 @@ import numpy as np
 
 from evp.config import Settings, write_settings
 from evp.errors import DatasetError, EvaluationError, EvpError
-from evp.estimator import Estimator, Refining
+from evp.estimator import Estimator, Refining, SelfCalibrating
 from evp.io.dataset import Dataset
 from evp.io.trajectory import Trajectory, write_trajectory
 from evp.types import PoseEstimate, TrackingState
@@ -147,13 +147,18 @@ def _max_time_difference(dataset: Dataset) -> float:
 def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: Path) -> dict:
     """trajectory.tum, states.csv, timing.json, metrics.json (+ plots) when ground truth exists,
     settings.yaml; trajectory_live.tum (the poses as answered live) when trajectory.tum holds a
-    refined trajectory; for SLAM also keyframes.tum, map.ply and map.npz."""
+    refined trajectory; camera_estimated.yaml (usable as camera.calibration_file) when the
+    estimator estimated the lens; for SLAM also keyframes.tum, map.ply and map.npz."""
     out.mkdir(parents=True, exist_ok=True)
     write_settings(settings, out)
     trajectory = result.final_trajectory()
     write_trajectory(out / "trajectory.tum", trajectory)
     if result.refiner is not None:
         write_trajectory(out / "trajectory_live.tum", result.trajectory())
+    if isinstance(result.refiner, SelfCalibrating):
+        from evp.calib.camera_files import write_opencv_yaml
+
+        write_opencv_yaml(out / "camera_estimated.yaml", result.refiner.lens, text={"estimated_by": type(result.refiner).__name__})
     if result.slam is not None:
         stamps, poses = result.slam.keyframe_trajectory()
         write_trajectory(out / "keyframes.tum", Trajectory.from_poses(poses, stamps, "keyframes"))

@@ -64,6 +64,7 @@ def test_survey_adjustment_places_a_tilted_view_where_it_was_taken(ground):
     odometry = NadirHomographyOdometry(CAMERA)
     live = [odometry.feed(Frame(float(k), _view(ground, centre, tilt), k)).T_world_cam for k, (centre, tilt) in enumerate(views)]
     stamps, adjusted = odometry.refined_trajectory()
+    assert odometry.refined_trajectory()[1] is adjusted  # adjusted once, not at every call
     assert np.array_equal(stamps, np.arange(5.0))
     truth = np.array([[c[0] - start[0], -(c[1] - start[1]), c[2]] for c, _ in views])
     live_error = np.linalg.norm(live[-1][:3, 3] - live[0][:3, 3] - (truth[-1] - truth[0]))

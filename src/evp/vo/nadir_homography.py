@@ -52,6 +52,7 @@ class NadirHomographyOdometry:
         self._placed: list[_Placed] = []
         self._matches: list[tuple[int, int, np.ndarray]] = []  # (photo, earlier photo, keypoint pairs)
         self.lens = camera  # the lens model the survey adjustment settled on
+        self._adjusted: np.ndarray | None = None  # poses of the last adjustment (it takes seconds)
         self._lost = False
 
     def _features(self, frame: Frame) -> tuple[np.ndarray, np.ndarray | None]:
@@ -129,9 +130,10 @@ class NadirHomographyOdometry:
         poses = np.array([p.T_world_cam for p in self._placed]).reshape(-1, 4, 4)
         if len(self._placed) < 2:
             return stamps, poses
-        tracks = tracks_from_matches([p.pixels for p in self._placed], self._matches)
-        adjusted, self.lens = adjust_survey(self.camera, poses, tracks)
-        return stamps, adjusted
+        if self._adjusted is None or len(self._adjusted) != len(self._placed):
+            tracks = tracks_from_matches([p.pixels for p in self._placed], self._matches)
+            self._adjusted, self.lens = adjust_survey(self.camera, poses, tracks)
+        return stamps, self._adjusted
 
     def _pose(self, H: np.ndarray) -> np.ndarray:
         """Camera pose from where the image centre and its x axis land in the mosaic, and the

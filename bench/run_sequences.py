@@ -21,6 +21,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+import yaml
+
 from evp.config import Settings
 from evp.io.registry import open_dataset
 from evp.pipeline import run_dataset, write_outputs
@@ -71,15 +73,29 @@ def _relocalisation(path: Path) -> str:
     return f"| {path.name} | {index + 1} | {distance:.4f} | {angle:.3f} |"
 
 
+def _settings(estimator: str, changes: list[str]) -> Settings:
+    """The default settings with ``SECTION.KEY=VALUE`` changes (values parsed as YAML scalars)."""
+    data: dict = {"estimator": estimator}
+    for change in changes:
+        key, _, value = change.partition("=")
+        section, _, name = key.partition(".")
+        if not name or not value:
+            raise SystemExit(f"--set takes SECTION.KEY=VALUE, got {change!r}")
+        data.setdefault(section, {})[name] = yaml.safe_load(value)
+    return Settings.model_validate(data)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--out", type=Path, default=Path("runs/bench"))
     parser.add_argument("--estimator", default="auto", choices=["auto", "slam", "klt-vo"])
     parser.add_argument("--only", nargs="+", choices=SEQUENCES, help="just these shared sequences (no relocalisation, no circle)")
+    parser.add_argument("--set", nargs="+", default=[], metavar="SECTION.KEY=VALUE", help="settings to change, e.g. slam.mapping=thread")
     args = parser.parse_args()
-    settings = Settings(estimator=args.estimator)
+    settings = _settings(args.estimator, args.set)
     only = f" --only {' '.join(args.only)}" if args.only else ""
-    print(f"command: python bench/run_sequences.py --out {args.out} --estimator {args.estimator}{only}  ({platform.node()}, {platform.machine()})\n")
+    changed = f" --set {' '.join(args.set)}" if args.set else ""
+    print(f"command: python bench/run_sequences.py --out {args.out} --estimator {args.estimator}{only}{changed}  ({platform.node()}, {platform.machine()})\n")
     print(
         "| sequence | estimator | ATE Sim3 (m) | ATE / path | tracked | frames to initialise | ms/frame median | p95 | ratio to OpenCV ORB | mapping ms/keyframe | peak memory so far (MB) |"
     )

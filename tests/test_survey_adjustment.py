@@ -85,3 +85,12 @@ def test_a_calibrated_lens_is_kept():
     adjusted, lens = adjust_survey(calibrated, truth, tracks_from_matches(keypoints, matches))
     assert lens is calibrated
     assert np.abs(adjusted[:, :3, 3] - truth[:, :3, 3]).max() < 0.1
+
+
+def test_photos_without_matched_points_keep_their_poses():
+    poses = np.repeat(se3(DOWN, [0.0, 0.0, 120.0])[None], 2, axis=0)
+    poses[1, 0, 3] = 35.0
+    no_tracks = tracks_from_matches([np.zeros((3, 2)), np.zeros((2, 2))], [(1, 0, np.zeros((0, 2), int))])
+    adjusted, lens = adjust_survey(NOMINAL, poses, no_tracks)
+    assert no_tracks.num_tracks == 0
+    assert np.array_equal(adjusted, poses) and lens is NOMINAL

@@ -28,6 +28,7 @@ from evp.types import CameraModel
 
 K1_SEARCH = (-0.25, 0.1)  # consumer lenses: barrel (negative) to mild pincushion
 K1_TOLERANCE = 0.0005  # 0.05 % of the radial term at the image corner: half a pixel at 1200 px
+MIN_TRACKS = 20  # fewer matched ground points: nothing worth adjusting, the given poses stand
 
 
 @dataclass
@@ -96,7 +97,10 @@ def _adjust(camera: CameraModel, poses_wc: np.ndarray, tracks: SurveyTracks) -> 
 
 def adjust_survey(camera: CameraModel, poses_wc: np.ndarray, tracks: SurveyTracks) -> tuple[np.ndarray, CameraModel]:
     """Adjusted camera-to-world poses (P, 4, 4) and the lens they were adjusted with: the given
-    camera when it has a lens model, else the camera with the k1 that fits the photos best."""
+    camera when it has a lens model, else the camera with the k1 that fits the photos best.
+    With fewer than ``MIN_TRACKS`` tracks the poses and the camera come back as given."""
+    if tracks.num_tracks < MIN_TRACKS:
+        return poses_wc, camera
     if camera.has_distortion:
         return _adjust(camera, poses_wc, tracks)[0], camera
     search = minimize_scalar(

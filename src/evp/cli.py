@@ -70,6 +70,7 @@ def run(
     fmt: str | None = typer.Option(None, "--format", help="Reader name, to skip auto-detection."),
 ) -> None:
     """Estimate the camera trajectory of a dataset and evaluate it when ground truth exists."""
+    from rich.console import Console
     from rich.progress import Progress
 
     from evp.config import load_settings
@@ -85,6 +86,9 @@ def run(
     with Progress(transient=True) as progress:
         task = progress.add_task(f"{dataset.name}", total=dataset.num_frames)
         result = run_dataset(dataset, estimator, lambda n: progress.advance(task, n), settings.orb.n_features)
+    if result.refiner is not None:  # a survey adjustment takes tens of seconds after the last frame
+        with Console(stderr=True).status(f"{dataset.name}: refining the trajectory (end of run)"):
+            result.final_trajectory()  # estimators keep what this costs; write_outputs asks again
     metrics = write_outputs(result, dataset, settings, out)
     typer.echo(
         f"{dataset.name}: tracked {metrics['tracked_frames']}/{metrics['frames']} frames "

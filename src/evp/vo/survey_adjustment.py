@@ -106,5 +106,5 @@ def adjust_survey(camera: CameraModel, poses_wc: np.ndarray, tracks: SurveyTrack
     search = minimize_scalar(
         lambda k1: _adjust(replace(camera, k1=k1), poses_wc, tracks)[1], bounds=K1_SEARCH, method="bounded", options={"xatol": K1_TOLERANCE}
     )
-    lens = replace(camera, k1=float(search.x))
+    lens = replace(camera, k1=float(search.x), name=f"{camera.name or 'camera'}+k1")
     return _adjust(lens, poses_wc, tracks)[0], lens

@@ -22,6 +22,7 @@ import tempfile
 from pathlib import Path
 
 import yaml
+from pydantic import ValidationError
 
 from evp.config import Settings
 from evp.io.registry import open_dataset
@@ -82,7 +83,10 @@ def _settings(estimator: str, changes: list[str]) -> Settings:
         if not name or not value:
             raise SystemExit(f"--set takes SECTION.KEY=VALUE, got {change!r}")
         data.setdefault(section, {})[name] = yaml.safe_load(value)
-    return Settings.model_validate(data)
+    try:
+        return Settings.model_validate(data)
+    except ValidationError as exc:
+        raise SystemExit(f"--set: {exc}") from exc
 
 
 def main() -> None:

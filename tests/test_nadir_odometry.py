@@ -74,6 +74,15 @@ def test_survey_adjustment_places_a_tilted_view_where_it_was_taken(ground):
     assert abs(odometry.lens.k1) < 0.002  # the rendering is an exact pinhole
 
 
+def test_a_calibrated_lens_is_not_reported_as_estimated(ground):
+    calibrated = CameraModel(800, 600, 600.0, 600.0, 400.0, 300.0, k1=1e-6)  # a lens model is given
+    odometry = NadirHomographyOdometry(calibrated)
+    for k in range(3):
+        odometry.feed(Frame(float(k), _view(ground, np.array([1200.0 + 150.0 * k, 1500.0, HEIGHT])), k))
+    assert len(odometry.refined_trajectory()[1]) == 3
+    assert odometry.lens is None  # nothing estimated: evp run writes no camera_estimated.yaml
+
+
 def test_real_survey_meets_the_target(tmp_path):
     """Issue target with a 5 % margin: >= 90 % of the 47 photos localised, ATE <= 5 m against GPS
     (COLMAP offline: 1.54 m; ORB-SLAM3 never initialises)."""

@@ -29,4 +29,4 @@ class Refining(Protocol):
 class SelfCalibrating(Protocol):
     """An estimator that estimates part of the lens model from the images themselves."""
 
-    lens: CameraModel  # the lens model it settled on (after ``refined_trajectory`` for a survey)
+    lens: CameraModel | None  # the lens model it estimated (after ``refined_trajectory`` for a survey); None if none

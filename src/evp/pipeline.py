@@ -155,7 +155,7 @@ def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: 
     write_trajectory(out / "trajectory.tum", trajectory)
     if result.refiner is not None:
         write_trajectory(out / "trajectory_live.tum", result.trajectory())
-    if isinstance(result.refiner, SelfCalibrating):
+    if isinstance(result.refiner, SelfCalibrating) and result.refiner.lens is not None:
         from evp.calib.camera_files import write_opencv_yaml
 
         write_opencv_yaml(out / "camera_estimated.yaml", result.refiner.lens, text={"estimated_by": type(result.refiner).__name__})

@@ -51,7 +51,7 @@ class NadirHomographyOdometry:
         self._matcher = cv2.FlannBasedMatcher({"algorithm": 1, "trees": 4}, {"checks": 64})  # KD-trees: SIFT matching in ms
         self._placed: list[_Placed] = []
         self._matches: list[tuple[int, int, np.ndarray]] = []  # (photo, earlier photo, keypoint pairs)
-        self.lens = camera  # the lens model the survey adjustment settled on
+        self.lens: CameraModel | None = None  # the lens with the k1 the survey adjustment estimated
         self._adjusted: np.ndarray | None = None  # poses of the last adjustment (it takes seconds)
         self._lost = False
 
@@ -132,7 +132,8 @@ class NadirHomographyOdometry:
             return stamps, poses
         if self._adjusted is None or len(self._adjusted) != len(self._placed):
             tracks = tracks_from_matches([p.pixels for p in self._placed], self._matches)
-            self._adjusted, self.lens = adjust_survey(self.camera, poses, tracks)
+            self._adjusted, lens = adjust_survey(self.camera, poses, tracks)
+            self.lens = None if lens is self.camera else lens  # a calibrated lens is used as given
         return stamps, self._adjusted
 
     def _pose(self, H: np.ndarray) -> np.ndarray:

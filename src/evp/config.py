@@ -86,6 +86,9 @@ class SlamSettings(_Section):
     local_ba_keyframes: int = Field(8, ge=2, description="keyframes optimised by local bundle adjustment")
     ba_evaluations: int = Field(6, ge=1, description="solver evaluations per outlier round")
     keyframe_redundancy: float = Field(0.9, gt=0, le=1, description="a keyframe whose points this share is seen by 3 others is culled")
+    loop_closing: bool = Field(True, description="detect returns to mapped places and correct the drift (pose graph + global bundle adjustment)")
+    loop_min_similarity: float = Field(0.5, ge=-1, le=1, description="least global-descriptor correlation of a loop candidate")
+    loop_min_matches: int = Field(40, ge=20, description="map point matches that confirm a loop")
 
 
 class AlignmentSettings(_Section):

@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -177,6 +177,8 @@ def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: 
         "init_frame": result.init_frame,
         "skipped": result.skipped,
     }
+    if result.slam is not None:
+        metrics["loop_closures"] = [asdict(closure) for closure in result.slam.loop_closures]
     if dataset.ground_truth is not None and len(trajectory) >= 3:
         from evp.eval.evaluate import EvaluationOptions, evaluate
         from evp.eval.metrics import Alignment

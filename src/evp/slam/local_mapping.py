@@ -1,6 +1,6 @@
 """Local mapping (ORB-SLAM's LocalMapping): for each new keyframe, register its observations,
 cull doubtful recent points, triangulate new points with covisible keyframes, fuse duplicates,
-run local bundle adjustment and cull redundant keyframes.
+run local bundle adjustment, cull redundant keyframes, then look for a loop (loop_closing.py).
 
 :class:`LocalMapper` does the work for one keyframe; :class:`MappingWorker` runs it in its own
 thread fed by a keyframe queue. The bundle adjustment solves on a snapshot without the map lock,
@@ -19,11 +19,12 @@ import numpy as np
 from evp.config import SlamSettings
 from evp.geometry.transforms import se3_inverse, skew
 from evp.geometry.two_view import CHI2_1DOF, check_points, triangulate
-from evp.slam.bundle_adjustment import bundle_adjust
+from evp.slam.bundle_adjustment import BundleProblem, bundle_adjust
+from evp.slam.fusion import fuse_points
+from evp.slam.loop_closing import LoopCloser
 from evp.slam.map import KeyFrame, Map
-from evp.slam.map_adjustment import apply_solution, window_problem
-from evp.slam.projection import project_points
-from evp.vision.matching import TH_LOW, best_unique, hamming_matrix, match_in_window, rotation_consistent
+from evp.slam.map_adjustment import apply_solution, whole_map_problem, window_problem
+from evp.vision.matching import TH_LOW, best_unique, hamming_matrix, rotation_consistent
 from evp.vision.orb import OrbExtractor
 
 
@@ -40,6 +41,7 @@ class LocalMapper:
         self.settings = settings
         self.K = extractor.camera.K
         self.recent_points: list[int] = []
+        self.loop_closer = LoopCloser(slam_map, extractor, settings) if settings.loop_closing else None
 
     def process(self, item: NewKeyFrame) -> None:
         kf = item.keyframe
@@ -52,12 +54,23 @@ class LocalMapper:
             self._triangulate_new_points(kf)
             self._fuse_into_neighbours(kf)
             self.map.update_covisibility(kf)
-            problem, kf_ids, point_ids = self._local_window(kf)
-        if problem is not None:
-            solution = bundle_adjust(problem, self.settings.ba_evaluations)
-            with self.map.lock:
-                apply_solution(self.map, problem, kf_ids, point_ids, solution, self.extractor.scale_factors)
-                self._cull_keyframes(kf)
+            window = self._local_window(kf)
+        self._adjust(window)
+        with self.map.lock:
+            self._cull_keyframes(kf)
+            closed = self.loop_closer is not None and self.loop_closer.process(kf) is not None
+            window = whole_map_problem(self.map, self.extractor.scale_factors, self.K) if closed else None
+        self._adjust(window)
+
+    def _adjust(self, window: tuple[BundleProblem, list[int], list[int]] | None) -> None:
+        """Bundle adjustment solved on a snapshot without the map lock (tracking goes on), the
+        solution written back with it."""
+        if window is None:
+            return
+        problem, kf_ids, point_ids = window
+        solution = bundle_adjust(problem, self.settings.ba_evaluations)
+        with self.map.lock:
+            apply_solution(self.map, problem, kf_ids, point_ids, solution, self.extractor.scale_factors)
 
     # --- steps ----------------------------------------------------------------------------
 
@@ -135,45 +148,21 @@ class LocalMapper:
         self.recent_points += created
 
     def _fuse_into_neighbours(self, kf: KeyFrame) -> None:
-        """Project the keyframe's points into its neighbours: a match there either adds an
-        observation or merges two map points that are one (ORB-SLAM's Fuse)."""
-        ids = [int(i) for i in kf.point_ids[kf.point_ids >= 0] if int(i) in self.map.points]
-        if not ids:
-            return
+        """Project the keyframe's points into its neighbours (ORB-SLAM's Fuse)."""
+        ids = [int(i) for i in kf.point_ids[kf.point_ids >= 0]]
         for neighbour_id in kf.best_covisible(self.settings.covisible_keyframes):
             nb = self.map.keyframes.get(neighbour_id)
-            if nb is None:
-                continue
-            ids = [i for i in ids if i in self.map.points]
-            candidates = [i for i in ids if nb.id not in self.map.points[i].observations]
-            if not candidates:
-                continue
-            projected = project_points(self.map, candidates, nb.T_cw, self.extractor, self.K)
-            if projected is None:
-                continue
-            rows, uv, level, radius = projected.rows, projected.uv, projected.level, 3.0 * self.extractor.scale_factors[projected.level]
-            descriptors = self.map.store.descriptor[np.asarray(candidates)[rows]]
-            a, b = match_in_window(descriptors, uv, nb.features.descriptors, nb.features.un_px, radius, TH_LOW, 1.0, level, nb.features.octave)
-            for r, index in zip(a, b, strict=True):
-                point = self.map.points.get(candidates[rows[r]])
-                if point is None or nb.id in point.observations:
-                    continue
-                existing = int(nb.point_ids[index])
-                if existing >= 0 and existing in self.map.points:
-                    keep, drop = (existing, point.id) if len(self.map.points[existing].observations) >= len(point.observations) else (point.id, existing)
-                    self.map.replace_point(drop, keep)
-                    self.map.refresh_points([keep], self.extractor.scale_factors)
-                else:
-                    self.map.add_observation(point, nb, int(index))
+            if nb is not None:
+                fuse_points(self.map, self.extractor, self.K, nb, ids)
 
-    def _local_window(self, kf: KeyFrame):
+    def _local_window(self, kf: KeyFrame) -> tuple[BundleProblem, list[int], list[int]] | None:
         """The keyframe and its best covisible neighbours, free; other keyframes seeing their
         points, fixed (plus the first keyframe, and at least two poses in all)."""
         local_ids = [kf.id] + [k for k in kf.best_covisible(self.settings.local_ba_keyframes - 1) if k in self.map.keyframes]
         local = set(local_ids)
         point_ids = sorted({int(p) for k in local_ids for p in self.map.keyframes[k].point_ids if p >= 0 and int(p) in self.map.points})
         if len(point_ids) < 10:
-            return None, None, None
+            return None
         fixed_ids = sorted({o for p in point_ids for o in self.map.points[p].observations if o not in local and o in self.map.keyframes})
         kf_ids = local_ids + fixed_ids
         fixed = np.array([k not in local for k in kf_ids])

@@ -1,13 +1,13 @@
 """Bundle adjustment of part of the map: the problem built from keyframes and points, and the
 solution written back (poses, positions, outlying observations dropped). Used by initialisation
-(both keyframes) and by local mapping (a covisible window)."""
+(both keyframes), by local mapping (a covisible window) and by loop closing (the whole map)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from evp.geometry.two_view import CHI2_2DOF
-from evp.slam.bundle_adjustment import BundleProblem
+from evp.slam.bundle_adjustment import BundleProblem, bundle_adjust
 from evp.slam.map import Map
 
 
@@ -57,3 +57,21 @@ def apply_solution(
         if point is not None:
             slam_map.remove_observation(point, kf_ids[problem.pose_index[n]])
     slam_map.refresh_points([p for p in point_ids if p in slam_map.points], scale_factors, descriptor=False)
+
+
+def whole_map_problem(slam_map: Map, scale_factors: np.ndarray, K: np.ndarray) -> tuple[BundleProblem, list[int], list[int]] | None:
+    """Global bundle adjustment's problem: every keyframe and point, the first keyframe fixed."""
+    kf_ids = sorted(slam_map.keyframes)
+    point_ids = sorted(slam_map.points)
+    if len(kf_ids) < 2 or not point_ids:
+        return None
+    fixed = np.arange(len(kf_ids)) == 0
+    return window_problem(slam_map, kf_ids, point_ids, fixed, scale_factors, K), kf_ids, point_ids
+
+
+def adjust_whole_map(slam_map: Map, scale_factors: np.ndarray, K: np.ndarray, evaluations: int) -> None:
+    """Global bundle adjustment, solved in place (the caller holds the map lock)."""
+    built = whole_map_problem(slam_map, scale_factors, K)
+    if built is not None:
+        problem, kf_ids, point_ids = built
+        apply_solution(slam_map, problem, kf_ids, point_ids, bundle_adjust(problem, evaluations), scale_factors)

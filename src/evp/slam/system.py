@@ -21,10 +21,10 @@ import numpy as np
 from evp.config import OrbSettings, SlamSettings
 from evp.geometry.transforms import scale_motion, se3_inverse
 from evp.geometry.two_view import initial_two_view
-from evp.slam.bundle_adjustment import bundle_adjust
 from evp.slam.local_mapping import InlineMapping, LocalMapper, MappingWorker, NewKeyFrame
+from evp.slam.loop_closing import LoopClosure
 from evp.slam.map import KeyFrame, Map
-from evp.slam.map_adjustment import apply_solution, window_problem
+from evp.slam.map_adjustment import adjust_whole_map
 from evp.slam.pose_optimizer import optimise_pose
 from evp.slam.projection import project_points, undistorted_bounds
 from evp.slam.relocalisation import rank_keyframes, thumbnail
@@ -85,6 +85,7 @@ class SlamSystem:
         self._last_kf_frame = 0
         self._last_reloc_frame = -(10**9)
         self._last_inliers = 0
+        self._loops_seen = 0
 
     # --- public ---------------------------------------------------------------------------
 
@@ -117,6 +118,11 @@ class SlamSystem:
     @property
     def mapping_ms(self) -> list[float]:
         return self.mapping.mapping_ms
+
+    @property
+    def loop_closures(self) -> list[LoopClosure]:
+        closer = self.mapping.mapper.loop_closer
+        return list(closer.closures) if closer is not None else []
 
     def keyframe_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         with self.map.lock:
@@ -164,7 +170,7 @@ class SlamSystem:
                 point = self.map.add_point(position, ref.descriptors[a], kf0.id)
                 self.map.add_observation(point, kf0, int(a))
                 self.map.add_observation(point, kf1, int(b))
-            self._global_bundle_adjustment([kf0, kf1])
+            adjust_whole_map(self.map, self.extractor.scale_factors, self.K, evaluations=20)
             depth = self.map.median_depth(kf0)
             if depth <= 0 or len(self.map.points) < s.init_min_triangulated:
                 self._discard_map()
@@ -187,14 +193,6 @@ class SlamSystem:
     def _reference_here(self, features: Features, grey: np.ndarray) -> _InitReference:
         return _InitReference(features, grey, len(self.records))  # this frame's record comes next
 
-    def _global_bundle_adjustment(self, keyframes: list[KeyFrame]) -> None:
-        """Initial map: optimise both keyframes and all points, the first keyframe fixed."""
-        kf_ids = [kf.id for kf in keyframes]
-        point_ids = sorted(self.map.points)
-        fixed = np.array([True] + [False] * (len(kf_ids) - 1))
-        problem = window_problem(self.map, kf_ids, point_ids, fixed, self.extractor.scale_factors, self.K)
-        apply_solution(self.map, problem, kf_ids, point_ids, bundle_adjust(problem, evaluations=20), self.extractor.scale_factors)
-
     def _rescale(self, factor: float) -> None:
         for kf in self.map.keyframes.values():
             T = kf.T_cw.copy()
@@ -212,6 +210,8 @@ class SlamSystem:
 
     def _track(self, timestamp: float, grey: np.ndarray, features: Features) -> np.ndarray | None:
         with self.map.lock:
+            if self.map.loops_closed != self._loops_seen:
+                self._follow_loop_correction()
             matched = np.full(len(features), -1)
             T_cw = None
             if self._velocity is not None:
@@ -235,6 +235,17 @@ class SlamSystem:
             if self._need_keyframe(inliers):
                 self._insert_keyframe(timestamp, features, T_cw, matched, grey)
         return T_cw
+
+    def _follow_loop_correction(self) -> None:
+        """A loop correction moved the keyframes: the last frame moves with its reference
+        keyframe, so the motion model predicts in the corrected map."""
+        self._loops_seen = self.map.loops_closed
+        record = self.records[-1] if self.records else None
+        if record is None or record.timestamp != self._last.timestamp or record.reference_kf < 0:
+            return
+        T_ref = self._keyframe_pose(record.reference_kf)
+        if T_ref is not None:
+            self._last.T_cw = record.T_frame_ref @ T_ref
 
     def _map_point_arrays(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self.map.store.position[ids], self.map.store.descriptor[ids]

@@ -1,0 +1,269 @@
+"""Loop closing (ORB-SLAM's LoopClosing): when the camera comes back to a mapped place, join the
+two ends of the map and spread the drift between them.
+
+For each keyframe local mapping has finished:
+
+1. detection: keyframes that look alike (the relocaliser's global descriptor) and are not
+   already covisible with it, scoring at least as well as its own covisible neighbours, and found
+   again for three keyframes in a row (a place seen once by chance is not a loop);
+2. verification: descriptor matches between the two keyframes' map points, a similarity
+   (pose and scale: a monocular map drifts in both) by RANSAC, then the loop side's points are
+   projected through it to find more matches; at least ``loop_min_matches`` are needed;
+3. correction: the keyframe and its covisible neighbours are moved by the similarity with their
+   points, the duplicated points are merged, the pose graph (covisibility edges plus the new loop
+   edges) is optimised over similarities and every point follows its reference keyframe; local
+   mapping then refines the whole map by global bundle adjustment.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from evp.config import SlamSettings
+from evp.geometry.sim3 import Sim3
+from evp.geometry.transforms import se3_inverse
+from evp.slam.essential_graph import optimise_pose_graph
+from evp.slam.fusion import fuse_points
+from evp.slam.map import KeyFrame, Map
+from evp.slam.projection import project_points
+from evp.slam.sim3_estimation import estimate_sim3
+from evp.vision.matching import TH_HIGH, TH_LOW, match_descriptors, match_in_window, rotation_consistent
+from evp.vision.orb import OrbExtractor
+
+MIN_KEYFRAMES = 20  # no loop in a map smaller than this (ORB-SLAM: 10 keyframes since the last loop)
+NEIGHBOUR_MIN_WEIGHT = 30  # covisible neighbours setting the similarity bar (ORB-SLAM's)
+CONSISTENT_DETECTIONS = 3  # keyframes in a row that must find the same place
+GRAPH_MIN_WEIGHT = 100  # covisibility edges kept in the essential graph (ORB-SLAM's)
+
+
+@dataclass(frozen=True)
+class LoopClosure:
+    keyframe: int
+    loop_keyframe: int
+    timestamp: float
+    matches: int
+    scale: float  # scale correction the loop revealed (1: no scale drift)
+
+
+@dataclass
+class _Candidate:
+    keyframe: KeyFrame
+    S_kw: Sim3  # corrected world-to-camera similarity of the current keyframe
+    matches: dict[int, int]  # current keyframe's feature index -> loop map point
+
+
+class LoopCloser:
+    def __init__(self, slam_map: Map, extractor: OrbExtractor, settings: SlamSettings):
+        self.map = slam_map
+        self.extractor = extractor
+        self.settings = settings
+        self.K = extractor.camera.K
+        self.closures: list[LoopClosure] = []
+        self._groups: list[tuple[set[int], int]] = []  # candidate groups and their detection streaks
+        self._last_loop_kf = -(10**9)
+
+    def process(self, kf: KeyFrame) -> LoopClosure | None:
+        """Look for a loop at ``kf`` and correct the map when one is found (the caller holds the
+        map lock, and runs a global bundle adjustment after a correction)."""
+        for candidate in self._detect(kf):
+            found = self._verify(kf, candidate)
+            if found is not None:
+                return self._correct(kf, found)
+        return None
+
+    # --- detection --------------------------------------------------------------------------
+
+    def _detect(self, kf: KeyFrame) -> list[KeyFrame]:
+        keyframes = self.map.keyframes
+        if len(keyframes) < MIN_KEYFRAMES or kf.id - self._last_loop_kf < MIN_KEYFRAMES:
+            self._groups = []
+            return []
+        neighbours = [k for k in kf.best_covisible(len(kf.covisible), NEIGHBOUR_MIN_WEIGHT) if k in keyframes]
+        bar = min((float(kf.thumbnail @ keyframes[k].thumbnail) for k in neighbours), default=1.0)
+        connected = set(kf.covisible) | {kf.id}
+        others = [k for k in keyframes if k not in connected]
+        if not others:
+            self._groups = []
+            return []
+        scores = np.array([keyframes[k].thumbnail for k in others]) @ kf.thumbnail
+        candidates = [others[i] for i in np.argsort(-scores) if scores[i] >= max(bar, self.settings.loop_min_similarity)]
+        groups, accepted = [], []
+        for k in candidates:
+            group = {k} | set(keyframes[k].covisible)
+            streak = max((count for previous, count in self._groups if previous & group), default=0) + 1
+            groups.append((group, streak))
+            if streak >= CONSISTENT_DETECTIONS:
+                accepted.append(keyframes[k])
+        self._groups = groups
+        return accepted[:3]
+
+    # --- verification -----------------------------------------------------------------------
+
+    def _verify(self, kf: KeyFrame, loop_kf: KeyFrame) -> _Candidate | None:
+        rows_a = self._rows_with_points(kf)
+        rows_b = self._rows_with_points(loop_kf)
+        fa, fb = kf.features, loop_kf.features
+        a, b = match_descriptors(fa.descriptors[rows_a], fb.descriptors[rows_b], TH_LOW, 0.75)
+        keep = rotation_consistent(fa.angle[rows_a[a]], fb.angle[rows_b[b]])
+        ia, ib = rows_a[a[keep]], rows_b[b[keep]]
+        positions = self.map.store.position
+        Xa = positions[kf.point_ids[ia]] @ kf.T_cw[:3, :3].T + kf.T_cw[:3, 3]
+        Xb = positions[loop_kf.point_ids[ib]] @ loop_kf.T_cw[:3, :3].T + loop_kf.T_cw[:3, 3]
+        w = self.extractor.inv_level_sigma2
+        estimate = estimate_sim3(Xa, Xb, fa.un_px[ia], fb.un_px[ib], w[fa.octave[ia]], w[fb.octave[ib]], self.K, seed=kf.id)
+        if estimate is None:
+            return None
+        S_ab, inliers = estimate
+        S_kw = S_ab @ Sim3.from_se3(loop_kf.T_cw)
+        matches = {int(i): int(loop_kf.point_ids[j]) for i, j in zip(ia[inliers], ib[inliers], strict=True)}
+        self._search_loop_points(kf, S_kw, self._loop_points(loop_kf), matches)
+        if len(matches) < self.settings.loop_min_matches:
+            return None
+        return _Candidate(loop_kf, S_kw, matches)
+
+    def _rows_with_points(self, kf: KeyFrame) -> np.ndarray:
+        rows = np.flatnonzero(kf.point_ids >= 0)
+        return rows[np.fromiter((int(p) in self.map.points for p in kf.point_ids[rows]), bool, len(rows))]
+
+    def _loop_points(self, loop_kf: KeyFrame) -> list[int]:
+        """Points of the loop keyframe and its best covisible neighbours."""
+        ids = {int(p) for k in [loop_kf.id, *loop_kf.best_covisible(10)] if k in self.map.keyframes for p in self.map.keyframes[k].point_ids if p >= 0}
+        return sorted(p for p in ids if p in self.map.points)
+
+    def _search_loop_points(self, kf: KeyFrame, S_kw: Sim3, point_ids: list[int], matches: dict[int, int]) -> None:
+        """Add to ``matches`` the loop points found by projection through ``S_kw``."""
+        taken = set(matches.values())
+        ids = np.array([p for p in point_ids if p not in taken], int)
+        projection = project_points(self.map, ids, S_kw.to_se3()[0], self.extractor, self.K)
+        if projection is None:
+            return
+        free = np.array([i for i in range(len(kf.features)) if i not in matches], int)
+        features = kf.features
+        radius = 10.0 * self.extractor.scale_factors[projection.level]
+        a, b = match_in_window(
+            self.map.store.descriptor[ids[projection.rows]],
+            projection.uv,
+            features.descriptors[free],
+            features.un_px[free],
+            radius,
+            TH_HIGH,
+            1.0,
+            projection.level,
+            features.octave[free],
+        )
+        for r, index in zip(a, b, strict=True):
+            matches[int(free[index])] = int(ids[projection.rows[r]])
+
+    # --- correction -------------------------------------------------------------------------
+
+    def _correct(self, kf: KeyFrame, loop: _Candidate) -> LoopClosure:
+        keyframes = self.map.keyframes
+        group = [kf.id] + [k for k in kf.covisible if k in keyframes]
+        before = {k: keyframes[k].T_cw.copy() for k in keyframes}
+        neighbours_before = {k: set(keyframes[k].covisible) for k in group}
+        T_wk = se3_inverse(kf.T_cw)
+        corrected = {k: Sim3.from_se3(before[k] @ T_wk) @ loop.S_kw for k in group}
+        self._move_points(group, {k: Sim3.from_se3(before[k]) for k in group}, corrected)
+        for k in group:
+            keyframes[k].set_pose(corrected[k].to_se3()[0])
+        self._merge(kf, loop)
+        for k in group:
+            self.map.update_covisibility(keyframes[k])
+        loop_edges = {
+            (k, j) for k in group if k in keyframes for j in keyframes[k].covisible if j not in neighbours_before[k] and j not in group and j in keyframes
+        }
+        loop_edges.add((kf.id, loop.keyframe.id))
+        self._optimise_graph(before, corrected, loop_edges, loop.keyframe.id)
+        self.map.loops_closed += 1
+        self._last_loop_kf = kf.id
+        self._groups = []
+        closure = LoopClosure(kf.id, loop.keyframe.id, kf.timestamp, len(loop.matches), float(loop.S_kw.s[0]))
+        self.closures.append(closure)
+        return closure
+
+    def _move_points(self, kf_ids: list[int], old: dict[int, Sim3], new: dict[int, Sim3]) -> None:
+        """Points seen by ``kf_ids`` keep their place in their reference keyframe (the first of
+        ``kf_ids`` observing them, or their own first keyframe) as it moves from ``old`` to ``new``."""
+        moved: set[int] = set()
+        store = self.map.store
+        for k in kf_ids:
+            kf = self.map.keyframes.get(k)
+            if kf is None:
+                continue
+            ids = np.array([int(p) for p in kf.point_ids if p >= 0 and int(p) in self.map.points and int(p) not in moved], int)
+            if len(ids) == 0:
+                continue
+            store.position[ids] = new[k].inverse().apply(old[k].apply(store.position[ids]))
+            moved.update(ids.tolist())
+
+    def _merge(self, kf: KeyFrame, loop: _Candidate) -> None:
+        """The loop's points replace the current side's duplicates, in the keyframe itself (its
+        verified matches) and in its neighbours (by projection)."""
+        for index, point_id in loop.matches.items():
+            point = self.map.points.get(point_id)
+            if point is None or kf.id in point.observations:
+                continue
+            existing = int(kf.point_ids[index])
+            if existing >= 0 and existing in self.map.points:
+                self.map.replace_point(existing, point_id)
+            else:
+                self.map.add_observation(point, kf, index)
+        loop_points = self._loop_points(loop.keyframe)
+        for k in [kf.id, *kf.covisible]:
+            if k in self.map.keyframes:
+                fuse_points(self.map, self.extractor, self.K, self.map.keyframes[k], loop_points, radius_px=4.0)
+        self.map.refresh_points([p for p in loop_points if p in self.map.points], self.extractor.scale_factors)
+
+    def _optimise_graph(self, before: dict[int, np.ndarray], corrected: dict[int, Sim3], loop_edges: set[tuple[int, int]], fixed_kf: int) -> None:
+        """Spread the loop's correction over the map (essential graph over similarities), then
+        move every point with its reference keyframe."""
+        keyframes = self.map.keyframes
+        ids = sorted(keyframes)
+        slot = {k: n for n, k in enumerate(ids)}
+        start = {k: corrected.get(k, Sim3.from_se3(before[k])) for k in ids}
+        pairs = set()
+        for k in ids:
+            kf = keyframes[k]
+            older = [j for j in kf.best_covisible(len(kf.covisible)) if j < k and j in keyframes]
+            pairs.update((k, j) for j in older if kf.covisible[j] >= GRAPH_MIN_WEIGHT)
+            if older:
+                pairs.add((k, older[0]))  # the strongest older neighbour keeps the graph connected
+        pairs -= {(i, j) for i, j in loop_edges} | {(j, i) for i, j in loop_edges}
+        edge_i = np.array([slot[i] for i, _ in pairs] + [slot[i] for i, _ in loop_edges], int)
+        edge_j = np.array([slot[j] for _, j in pairs] + [slot[j] for _, j in loop_edges], int)
+        initial = _stack([start[k] for k in ids])
+        unmoved = _stack([Sim3.from_se3(before[k]) for k in ids])
+        n_normal = len(pairs)
+        # normal edges keep the relative poses mapping had found; loop edges the corrected ones
+        measured = _stack(
+            [
+                unmoved[edge_i[:n_normal]] @ unmoved[edge_j[:n_normal]].inverse(),
+                initial[edge_i[n_normal:]] @ initial[edge_j[n_normal:]].inverse(),
+            ]
+        )
+        fixed = np.array([k == fixed_kf for k in ids])
+        optimised = optimise_pose_graph(initial, fixed, edge_i, edge_j, measured)
+        self._move_all_points(ids, initial, optimised)
+        poses = optimised.to_se3()
+        for n, k in enumerate(ids):
+            keyframes[k].set_pose(poses[n])
+
+    def _move_all_points(self, ids: list[int], old: Sim3, new: Sim3) -> None:
+        slot = {k: n for n, k in enumerate(ids)}
+        point_ids, references = [], []
+        for point_id, point in self.map.points.items():
+            reference = point.first_kf if point.first_kf in slot else next((k for k in point.observations if k in slot), None)
+            if reference is not None:
+                point_ids.append(point_id)
+                references.append(slot[reference])
+        if not point_ids:
+            return
+        rows, refs = np.array(point_ids), np.array(references)
+        store = self.map.store
+        store.position[rows] = new[refs].inverse().apply(old[refs].apply(store.position[rows]))
+
+
+def _stack(items: list[Sim3]) -> Sim3:
+    return Sim3(np.concatenate([s.s for s in items]), np.concatenate([s.R for s in items]), np.concatenate([s.t for s in items]))

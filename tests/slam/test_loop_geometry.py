@@ -1,0 +1,94 @@
+"""Loop closing's geometry on exact data: similarity algebra, the similarity between two
+cameras from matched points, and the pose graph spreading a loop's error."""
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from evp.geometry.alignment import umeyama
+from evp.geometry.sim3 import Sim3
+from evp.slam.essential_graph import optimise_pose_graph
+from evp.slam.projection import pinhole_pixels
+from evp.slam.sim3_estimation import estimate_sim3
+
+K = np.array([[400.0, 0, 320], [0, 400.0, 190], [0, 0, 1]])
+
+
+def _random_sim3(rng, n):
+    return Sim3(np.exp(rng.normal(0, 0.2, n)), Rotation.random(n, random_state=rng).as_matrix(), rng.normal(0, 1, (n, 3)))
+
+
+def test_similarity_algebra_round_trips():
+    rng = np.random.default_rng(0)
+    a, b = _random_sim3(rng, 5), _random_sim3(rng, 5)
+    x = rng.normal(0, 1, (5, 3))
+    np.testing.assert_allclose((a @ b).apply(x), a.apply(b.apply(x)), atol=1e-12)
+    np.testing.assert_allclose((a.inverse() @ a).log(), 0, atol=1e-12)
+    np.testing.assert_allclose(Sim3.exp(a.log()).R, a.R, atol=1e-12)
+    # the rigid pose of a similarity projects points corrected by it as before
+    T = a.to_se3()[0]
+    point = np.array([0.3, -0.2, 4.0])
+    corrected = a[0].inverse().apply(point[None])[0]
+    np.testing.assert_allclose(pinhole_pixels((T[:3, :3] @ corrected + T[:3, 3])[None], K), pinhole_pixels(point[None], K), atol=1e-9)
+
+
+def test_similarity_between_two_cameras_from_noisy_matches_with_outliers():
+    rng = np.random.default_rng(1)
+    Xa = np.c_[rng.uniform(-2, 2, (150, 2)), rng.uniform(3, 8, 150)]
+    truth = Sim3.one(0.7, Rotation.from_rotvec([0.05, -0.2, 0.1]).as_matrix(), [0.4, -0.1, 0.3])
+    Xb = truth.inverse().apply(Xa)
+    uv_a, uv_b = pinhole_pixels(Xa, K) + rng.normal(0, 0.5, (150, 2)), pinhole_pixels(Xb, K) + rng.normal(0, 0.5, (150, 2))
+    # the map's depths are noisy (a monocular map), and a third of the matches are wrong
+    Xa_noisy = Xa * (1 + rng.normal(0, 0.01, (150, 1)))
+    wrong = rng.choice(150, 50, replace=False)
+    Xb_noisy = Xb.copy()
+    Xb_noisy[wrong] = Xb[rng.permutation(wrong)]
+    uv_b[wrong] = uv_b[rng.permutation(wrong)]
+    ones = np.ones(150)
+    S, inliers = estimate_sim3(Xa_noisy, Xb_noisy, uv_a, uv_b, ones, ones, K)
+    assert inliers[np.setdiff1d(np.arange(150), wrong)].mean() > 0.9 and inliers[wrong].mean() < 0.1
+    assert abs(S.s[0] / 0.7 - 1) < 0.01
+    assert np.degrees(np.linalg.norm(Rotation.from_matrix(S.R[0] @ truth.R[0].T).as_rotvec())) < 0.2
+
+
+def test_unrelated_points_give_no_similarity():
+    rng = np.random.default_rng(2)
+    Xa = np.c_[rng.uniform(-2, 2, (60, 2)), rng.uniform(3, 8, 60)]
+    Xb = np.c_[rng.uniform(-2, 2, (60, 2)), rng.uniform(3, 8, 60)]
+    ones = np.ones(60)
+    assert estimate_sim3(Xa, Xb, pinhole_pixels(Xa, K), pinhole_pixels(Xb, K), ones, ones, K) is None
+
+
+def test_pose_graph_spreads_a_loop_error_in_pose_and_scale():
+    # twenty poses around a circle; odometry edges drift 1 % in scale per step, the loop edge is exact
+    n = 20
+    angles = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    R_cw = Rotation.from_euler("z", -angles[:, None]).as_matrix()
+    centres = np.c_[3 * np.cos(angles), 3 * np.sin(angles), np.zeros(n)]
+    truth = Sim3(np.ones(n), R_cw, -np.einsum("nij,nj->ni", R_cw, centres))
+    rel = [truth[i] @ truth[i - 1].inverse() for i in range(1, n)]
+    drifted = [truth[0]]
+    for i, r in enumerate(rel):
+        step = Sim3(r.s, r.R, r.t * 1.01 ** (i + 1))  # the map's scale slips
+        drifted.append(step @ drifted[-1])
+    initial = Sim3(np.concatenate([d.s for d in drifted]), np.concatenate([d.R for d in drifted]), np.concatenate([d.t for d in drifted]))
+    edge_i = np.r_[np.arange(1, n), 0]
+    edge_j = np.r_[np.arange(0, n - 1), n - 1]
+    measured_odometry = initial[edge_i[:-1]] @ initial[edge_j[:-1]].inverse()
+    loop = truth[[0]] @ truth[[n - 1]].inverse()
+    measured = Sim3(np.r_[measured_odometry.s, loop.s], np.concatenate([measured_odometry.R, loop.R]), np.concatenate([measured_odometry.t, loop.t]))
+    fixed = np.arange(n) == 0
+
+    def loop_gap(poses):
+        return np.linalg.norm((measured[[n - 1]].inverse() @ poses[[0]] @ poses[[n - 1]].inverse()).log())
+
+    optimised = optimise_pose_graph(initial, fixed, edge_i, edge_j, measured)
+    assert loop_gap(initial) > 0.1
+    assert loop_gap(optimised) < 0.25 * loop_gap(initial)
+    np.testing.assert_allclose(optimised[[0]].t, initial[[0]].t)  # the fixed pose stays
+
+    def centre_error(poses):  # after similarity alignment, as ATE
+        estimated = poses.inverse().t
+        aligned = umeyama(estimated, centres, with_scale=True).apply(estimated)
+        return np.sqrt(np.mean(np.sum((aligned - centres) ** 2, axis=1)))
+
+    assert centre_error(optimised) < 0.6 * centre_error(initial)

@@ -19,11 +19,14 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import scipy.linalg
+import scipy.sparse.linalg
 from scipy.sparse import bsr_matrix, csr_matrix
 
 from evp.geometry.transforms import nearest_rotation, skew
 from evp.geometry.two_view import CHI2_2DOF, HUBER_DELTA
 from evp.slam.projection import reprojection_chi2
+
+DENSE_POSE_LIMIT = 300  # free poses above which the reduced system is solved as a sparse matrix
 
 
 @dataclass
@@ -109,19 +112,35 @@ class _Linearisation:
         V = self.V + (damping * diag3 + 1e-9)[:, :, None] * np.eye(3)
         V_inv = np.linalg.inv(V)
         V_inv_bsr = bsr_matrix((V_inv, np.arange(n_points), np.arange(n_points + 1)), shape=(3 * n_points, 3 * n_points))
-        U = scipy.linalg.block_diag(*self.U) if len(self.U) else np.zeros((0, 0))
-        U[np.diag_indices_from(U)] *= 1 + damping
-        U[np.diag_indices_from(U)] += 1e-9
         WV = self.W @ V_inv_bsr
-        S = U - (WV @ self.W.T).toarray()
         rhs = -(self.g_pose.ravel() - WV @ self.g_point.ravel())
-        try:
-            d_pose = scipy.linalg.cho_solve(scipy.linalg.cho_factor(S), rhs) if len(rhs) else rhs
-        except np.linalg.LinAlgError:
-            return None
+        U = self.U.copy()
+        diagonal = np.einsum("nii->ni", U)  # a writable view
+        diagonal *= 1 + damping
+        diagonal += 1e-9
+        if len(U) > DENSE_POSE_LIMIT:
+            d_pose = _solve_sparse(bsr_matrix((U, np.arange(len(U)), np.arange(len(U) + 1))) - WV @ self.W.T, rhs)
+            if d_pose is None:
+                return None
+        else:
+            S = (scipy.linalg.block_diag(*U) if len(U) else np.zeros((0, 0))) - (WV @ self.W.T).toarray()
+            try:
+                d_pose = scipy.linalg.cho_solve(scipy.linalg.cho_factor(S), rhs) if len(rhs) else rhs
+            except np.linalg.LinAlgError:
+                return None
         back = -self.g_point.ravel() - self.W.T @ d_pose
         d_point = np.einsum("nij,nj->ni", V_inv, back.reshape(-1, 3))
         return d_pose.reshape(-1, 6), d_point
+
+
+def _solve_sparse(S, rhs: np.ndarray) -> np.ndarray | None:
+    """Sparse LU of the reduced system: a whole map's keyframes share points with few others, so
+    its pose system is mostly zeros (dense, 2000 keyframes would take 1.2 GB)."""
+    try:
+        solution = scipy.sparse.linalg.splu(S.tocsc()).solve(rhs)
+    except RuntimeError:  # exactly singular
+        return None
+    return solution if np.all(np.isfinite(solution)) else None
 
 
 def _apply(R: np.ndarray, t: np.ndarray, points: np.ndarray, free: np.ndarray, d_pose: np.ndarray, d_point: np.ndarray):

@@ -86,7 +86,7 @@ def run(
     with Progress(transient=True) as progress:
         task = progress.add_task(f"{dataset.name}", total=dataset.num_frames)
         result = run_dataset(dataset, estimator, lambda n: progress.advance(task, n), settings.orb.n_features)
-    if result.refiner is not None:  # a survey adjustment takes tens of seconds after the last frame
+    if result.refiner is not None:  # a survey adjustment or a global bundle adjustment: seconds after the last frame
         with Console(stderr=True).status(f"{dataset.name}: refining the trajectory (end of run)"):
             result.final_trajectory()  # estimators keep what this costs; write_outputs asks again
     metrics = write_outputs(result, dataset, settings, out)

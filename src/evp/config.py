@@ -89,6 +89,10 @@ class SlamSettings(_Section):
     loop_closing: bool = Field(True, description="detect returns to mapped places and correct the drift (pose graph + global bundle adjustment)")
     loop_min_similarity: float = Field(0.5, ge=-1, le=1, description="least global-descriptor correlation of a loop candidate")
     loop_min_matches: int = Field(40, ge=20, description="map point matches that confirm a loop")
+    final_bundle_adjustment: bool = Field(
+        True,
+        description="offline runs: one global bundle adjustment of the whole map before trajectory.tum is written (trajectory_live.tum keeps the live poses)",
+    )
 
 
 class AlignmentSettings(_Section):

@@ -86,6 +86,7 @@ class SlamSystem:
         self._last_reloc_frame = -(10**9)
         self._last_inliers = 0
         self._loops_seen = 0
+        self._globally_adjusted = False
 
     # --- public ---------------------------------------------------------------------------
 
@@ -129,7 +130,15 @@ class SlamSystem:
             return self.map.keyframe_poses()
 
     def refined_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
-        """Timestamps and ``T_world_cam`` of every tracked frame, through the final keyframe poses."""
+        """Timestamps and ``T_world_cam`` of every tracked frame, through the final keyframe poses.
+
+        The first call after a run (``slam.final_bundle_adjustment``) adjusts the whole map once:
+        local bundle adjustment left each keyframe as its window saw it, and a closed loop was
+        adjusted when it closed, not with what came after (seconds; offline runs ask for it)."""
+        if self.settings.final_bundle_adjustment and not self._globally_adjusted:
+            self._globally_adjusted = True
+            with self.map.lock:
+                adjust_whole_map(self.map, self.extractor.scale_factors, self.K, self.settings.ba_evaluations)
         stamps, poses = [], []
         with self.map.lock:
             for record in self.records:

@@ -28,6 +28,9 @@ def test_sample_run_tracks_and_is_accurate(tmp_path):
     assert metrics["tracked_fraction"] >= 0.8
     assert metrics["rmse"] < 0.05 * metrics["reference_path_length_m"]
     assert metrics["init_frame"] <= 10
+    assert metrics["loop_closures"] == []  # a slider's back-and-forth stays covisible: nothing to close
+    # trajectory.tum is the globally adjusted map's, trajectory_live.tum the poses as answered
+    assert (tmp_path / "trajectory_live.tum").read_text() != (tmp_path / "trajectory.tum").read_text()
     assert result.estimates[0].tracking_state is TrackingState.NOT_INITIALIZED
     for name in ("trajectory.tum", "states.csv", "timing.json", "metrics.json", "settings.yaml", "plots/top_view.png"):
         assert (tmp_path / name).is_file()

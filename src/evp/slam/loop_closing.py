@@ -102,8 +102,8 @@ class LoopCloser:
     # --- verification -----------------------------------------------------------------------
 
     def _verify(self, kf: KeyFrame, loop_kf: KeyFrame) -> _Candidate | None:
-        rows_a = self._rows_with_points(kf)
-        rows_b = self._rows_with_points(loop_kf)
+        rows_a = self.map.rows_with_points(kf.point_ids)
+        rows_b = self.map.rows_with_points(loop_kf.point_ids)
         fa, fb = kf.features, loop_kf.features
         a, b = match_descriptors(fa.descriptors[rows_a], fb.descriptors[rows_b], TH_LOW, 0.75)
         keep = rotation_consistent(fa.angle[rows_a[a]], fb.angle[rows_b[b]])
@@ -122,10 +122,6 @@ class LoopCloser:
         if len(matches) < self.settings.loop_min_matches:
             return None
         return _Candidate(loop_kf, S_kw, matches)
-
-    def _rows_with_points(self, kf: KeyFrame) -> np.ndarray:
-        rows = np.flatnonzero(kf.point_ids >= 0)
-        return rows[np.fromiter((int(p) in self.map.points for p in kf.point_ids[rows]), bool, len(rows))]
 
     def _loop_points(self, loop_kf: KeyFrame) -> list[int]:
         """Points of the loop keyframe and its best covisible neighbours."""

@@ -277,6 +277,12 @@ class Map:
             if other_id in self.keyframes:
                 self.keyframes[other_id].covisible[kf.id] = weight
 
+    def rows_with_points(self, point_ids: np.ndarray) -> np.ndarray:
+        """Rows of a per-feature point-id array (-1 where none) that name a live point (mapping
+        may have culled some since the array was filled)."""
+        rows = np.flatnonzero(point_ids >= 0)
+        return rows[np.fromiter((int(i) in self.points for i in point_ids[rows]), bool, len(rows))]
+
     def median_depth(self, kf: KeyFrame) -> float:
         ids = kf.point_ids[kf.point_ids >= 0]
         positions = np.array([self.points[int(i)].position for i in ids if int(i) in self.points]).reshape(-1, 3)

@@ -270,16 +270,10 @@ class SlamSystem:
         matched[rows[~inlier]] = -1
         return T_cw, int(inlier.sum())
 
-    def _rows_with_points(self, point_ids: np.ndarray) -> np.ndarray:
-        """Feature rows whose map point still exists (mapping may have culled some)."""
-        rows = np.flatnonzero(point_ids >= 0)
-        points = self.map.points
-        return rows[np.fromiter((int(i) in points for i in point_ids[rows]), bool, len(rows))]
-
     def _track_motion_model(self, timestamp: float, features: Features, matched: np.ndarray) -> np.ndarray | None:
         last = self._last
         T_pred = self._predicted_motion(timestamp - last.timestamp) @ last.T_cw
-        rows_last = self._rows_with_points(last.point_ids)
+        rows_last = self.map.rows_with_points(last.point_ids)
         if len(rows_last) < 10:
             return None
         ids = last.point_ids[rows_last]
@@ -324,7 +318,7 @@ class SlamSystem:
         if kf is None:
             kf = self.map.keyframes[max(self.map.keyframes)]
             self._reference_kf = kf.id
-        rows = self._rows_with_points(kf.point_ids)
+        rows = self.map.rows_with_points(kf.point_ids)
         if len(rows) < 15:
             return None
         a, b = match_descriptors(kf.features.descriptors[rows], features.descriptors, TH_LOW, 0.7)
@@ -440,7 +434,7 @@ class SlamSystem:
 
     def _relocalise_against(self, timestamp: float, features: Features, kf: KeyFrame) -> np.ndarray | None:
         s = self.settings
-        rows = self._rows_with_points(kf.point_ids)
+        rows = self.map.rows_with_points(kf.point_ids)
         if len(rows) < 15:
             return None
         a, b = match_descriptors(kf.features.descriptors[rows], features.descriptors, TH_LOW, 0.75)

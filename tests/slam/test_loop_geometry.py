@@ -70,12 +70,12 @@ def test_pose_graph_spreads_a_loop_error_in_pose_and_scale():
     for i, r in enumerate(rel):
         step = Sim3(r.s, r.R, r.t * 1.01 ** (i + 1))  # the map's scale slips
         drifted.append(step @ drifted[-1])
-    initial = Sim3(np.concatenate([d.s for d in drifted]), np.concatenate([d.R for d in drifted]), np.concatenate([d.t for d in drifted]))
+    initial = Sim3.stack(drifted)
     edge_i = np.r_[np.arange(1, n), 0]
     edge_j = np.r_[np.arange(0, n - 1), n - 1]
     measured_odometry = initial[edge_i[:-1]] @ initial[edge_j[:-1]].inverse()
     loop = truth[[0]] @ truth[[n - 1]].inverse()
-    measured = Sim3(np.r_[measured_odometry.s, loop.s], np.concatenate([measured_odometry.R, loop.R]), np.concatenate([measured_odometry.t, loop.t]))
+    measured = Sim3.stack([measured_odometry, loop])
     fixed = np.arange(n) == 0
 
     def loop_gap(poses):

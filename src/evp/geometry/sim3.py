@@ -29,6 +29,11 @@ class Sim3:
     def one(s: float, R: np.ndarray, t: np.ndarray) -> Sim3:
         return Sim3(np.array([float(s)]), np.asarray(R, float)[None], np.asarray(t, float)[None])
 
+    @staticmethod
+    def stack(items: list[Sim3]) -> Sim3:
+        """One stack of the given stacks, in order."""
+        return Sim3(np.concatenate([a.s for a in items]), np.concatenate([a.R for a in items]), np.concatenate([a.t for a in items]))
+
     def __len__(self) -> int:
         return len(self.s)
 

@@ -161,7 +161,7 @@ class LoopCloser:
         neighbours_before = {k: set(keyframes[k].covisible) for k in group}
         T_wk = se3_inverse(kf.T_cw)
         corrected = {k: Sim3.from_se3(before[k] @ T_wk) @ loop.S_kw for k in group}
-        self._move_points(group, {k: Sim3.from_se3(before[k]) for k in group}, corrected)
+        self._move_points(group, Sim3.from_se3(np.array([before[k] for k in group])), Sim3.stack([corrected[k] for k in group]))
         for k in group:
             keyframes[k].set_pose(corrected[k].to_se3()[0])
         self._merge(kf, loop)
@@ -179,20 +179,22 @@ class LoopCloser:
         self.closures.append(closure)
         return closure
 
-    def _move_points(self, kf_ids: list[int], old: dict[int, Sim3], new: dict[int, Sim3]) -> None:
-        """Points seen by ``kf_ids`` keep their place in their reference keyframe (the first of
-        ``kf_ids`` observing them, or their own first keyframe) as it moves from ``old`` to ``new``."""
-        moved: set[int] = set()
+    def _move_points(self, kf_ids: list[int], old: Sim3, new: Sim3) -> None:
+        """Points seen by ``kf_ids`` keep their place in their reference keyframe (their first
+        keyframe, or else the first of ``kf_ids`` observing them) as it moves from ``old`` to
+        ``new`` (stacks in the order of ``kf_ids``)."""
+        slot = {k: n for n, k in enumerate(kf_ids)}
+        point_ids, references = [], []
+        for point_id, point in self.map.points.items():
+            reference = point.first_kf if point.first_kf in slot else next((k for k in point.observations if k in slot), None)
+            if reference is not None:
+                point_ids.append(point_id)
+                references.append(slot[reference])
+        if not point_ids:
+            return
+        rows, refs = np.array(point_ids), np.array(references)
         store = self.map.store
-        for k in kf_ids:
-            kf = self.map.keyframes.get(k)
-            if kf is None:
-                continue
-            ids = np.array([int(p) for p in kf.point_ids if p >= 0 and int(p) in self.map.points and int(p) not in moved], int)
-            if len(ids) == 0:
-                continue
-            store.position[ids] = new[k].inverse().apply(old[k].apply(store.position[ids]))
-            moved.update(ids.tolist())
+        store.position[rows] = new[refs].inverse().apply(old[refs].apply(store.position[rows]))
 
     def _merge(self, kf: KeyFrame, loop: _Candidate) -> None:
         """The loop's points replace the current side's duplicates, in the keyframe itself (its
@@ -229,11 +231,11 @@ class LoopCloser:
         pairs -= {(i, j) for i, j in loop_edges} | {(j, i) for i, j in loop_edges}
         edge_i = np.array([slot[i] for i, _ in pairs] + [slot[i] for i, _ in loop_edges], int)
         edge_j = np.array([slot[j] for _, j in pairs] + [slot[j] for _, j in loop_edges], int)
-        initial = _stack([start[k] for k in ids])
-        unmoved = _stack([Sim3.from_se3(before[k]) for k in ids])
+        initial = Sim3.stack([start[k] for k in ids])
+        unmoved = Sim3.stack([Sim3.from_se3(before[k]) for k in ids])
         n_normal = len(pairs)
         # normal edges keep the relative poses mapping had found; loop edges the corrected ones
-        measured = _stack(
+        measured = Sim3.stack(
             [
                 unmoved[edge_i[:n_normal]] @ unmoved[edge_j[:n_normal]].inverse(),
                 initial[edge_i[n_normal:]] @ initial[edge_j[n_normal:]].inverse(),
@@ -241,25 +243,7 @@ class LoopCloser:
         )
         fixed = np.array([k == fixed_kf for k in ids])
         optimised = optimise_pose_graph(initial, fixed, edge_i, edge_j, measured)
-        self._move_all_points(ids, initial, optimised)
+        self._move_points(ids, initial, optimised)
         poses = optimised.to_se3()
         for n, k in enumerate(ids):
             keyframes[k].set_pose(poses[n])
-
-    def _move_all_points(self, ids: list[int], old: Sim3, new: Sim3) -> None:
-        slot = {k: n for n, k in enumerate(ids)}
-        point_ids, references = [], []
-        for point_id, point in self.map.points.items():
-            reference = point.first_kf if point.first_kf in slot else next((k for k in point.observations if k in slot), None)
-            if reference is not None:
-                point_ids.append(point_id)
-                references.append(slot[reference])
-        if not point_ids:
-            return
-        rows, refs = np.array(point_ids), np.array(references)
-        store = self.map.store
-        store.position[rows] = new[refs].inverse().apply(old[refs].apply(store.position[rows]))
-
-
-def _stack(items: list[Sim3]) -> Sim3:
-    return Sim3(np.concatenate([s.s for s in items]), np.concatenate([s.R for s in items]), np.concatenate([s.t for s in items]))

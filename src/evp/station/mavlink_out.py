@@ -93,6 +93,12 @@ def extrapolate(state: BodyState, now: float) -> tuple[float, np.ndarray]:
     return state.time_s + dt, T
 
 
+# The flight controller's estimator rejects samples whose time goes backwards. Extrapolating the
+# newest pose can do that by a frame when poses arrive with jitter; a larger step back is a new
+# mobile clock (a new session), which restarts the sequence.
+BACKWARDS_RESET_USEC = 1_000_000
+
+
 class MavlinkOutput:
     """Sends the newest pose at ``settings.rate_hz`` on a pymavlink connection (UDP or serial)."""
 
@@ -108,6 +114,7 @@ class MavlinkOutput:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self.sent = 0
+        self._last_usec = -1
         self._thread = threading.Thread(target=self._loop, name="evp-mavlink", daemon=True)
         self._thread.start()
 
@@ -142,6 +149,9 @@ class MavlinkOutput:
     def _send(self, state: BodyState, now: float, mavlink) -> None:
         time_s, T = extrapolate(state, now)
         usec = int(round(time_s * 1e6))
+        if 0 <= self._last_usec - usec < BACKWARDS_RESET_USEC:
+            return  # a pose that arrived late extrapolates to before the last one sent: skip the tick
+        self._last_usec = usec
         x, y, z = (float(v) for v in T[:3, 3])
         covariance = [math.nan] + [0.0] * 20  # unknown (MAVLink: NaN in the first element)
         frame = mavlink.MAV_FRAME_LOCAL_NED if self.settings.frame == "local_ned" else mavlink.MAV_FRAME_LOCAL_FRD

@@ -15,6 +15,7 @@ take left increments (rotation vector, translation) re-linearised at every itera
 from __future__ import annotations
 
 from dataclasses import dataclass
+from threading import Event
 
 import cv2
 import numpy as np
@@ -22,7 +23,7 @@ import scipy.linalg
 import scipy.sparse.linalg
 from scipy.sparse import bsr_matrix, csr_matrix
 
-from evp.geometry.transforms import nearest_rotation, skew
+from evp.geometry.transforms import nearest_rotation
 from evp.geometry.two_view import CHI2_2DOF, HUBER_DELTA
 from evp.slam.projection import reprojection_chi2
 
@@ -51,10 +52,15 @@ def observation_chi2(problem: BundleProblem, poses: np.ndarray, points: np.ndarr
 
 
 def _block_sums(index: np.ndarray, blocks: np.ndarray, count: int) -> np.ndarray:
-    """Sum of ``blocks[n]`` grouped by ``index[n]`` into ``count`` blocks of the same shape."""
-    flat = blocks.reshape(len(blocks), -1)
-    sums = np.stack([np.bincount(index, weights=flat[:, c], minlength=count) for c in range(flat.shape[1])], axis=1)
-    return sums.reshape((count, *blocks.shape[1:]))
+    """Sum of ``blocks[n]`` grouped by ``index[n]`` into ``count`` blocks of the same shape (one
+    sparse product: about twice as fast as a bincount per entry)."""
+    grouping = csr_matrix((np.ones(len(index)), (index, np.arange(len(index)))), shape=(count, len(index)))
+    return np.asarray(grouping @ blocks.reshape(len(blocks), -1)).reshape((count, *blocks.shape[1:]))
+
+
+def _outer(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Row-wise outer products (n, a) x (n, b) -> (n, a, b)."""
+    return u[:, :, None] * v[:, None, :]
 
 
 class _Linearisation:
@@ -82,27 +88,30 @@ class _Linearisation:
             weight = np.ones(len(e2))
             self.cost = float(np.sum(e2))
         self.r = r * np.sqrt(weight)[:, None]
-        inv_sigma = inv_sigma * np.sqrt(weight)
-        d_proj = np.zeros((len(pc), 2, 3))
-        d_proj[:, 0, 0] = K[0, 0] * iz
-        d_proj[:, 0, 2] = -K[0, 0] * pc[:, 0] * iz * iz
-        d_proj[:, 1, 1] = K[1, 1] * iz
-        d_proj[:, 1, 2] = -K[1, 1] * pc[:, 1] * iz * iz
-        d_proj *= inv_sigma[:, None, None]
-        J_point = d_proj @ Ri  # d pc / d X = R
+        # Jacobian rows written out (the projection's 2x3 derivative has two zeros): per observation
+        # d r / d X = D R and d r / d (phi, t) = D [-[pc]x  I], with D = [[a, 0, b], [0, c, d]]
+        w = inv_sigma * np.sqrt(weight)
+        x, y = pc[:, 0], pc[:, 1]
+        a, c = K[0, 0] * iz * w, K[1, 1] * iz * w
+        b, d = -a * x * iz, -c * y * iz
+        P0 = a[:, None] * Ri[:, 0, :] + b[:, None] * Ri[:, 2, :]
+        P1 = c[:, None] * Ri[:, 1, :] + d[:, None] * Ri[:, 2, :]
         n_points, n_free = len(points), int(slot.max()) + 1 if len(slot) else 0
-        self.V = _block_sums(point_index, np.einsum("nki,nkj->nij", J_point, J_point), n_points)
-        self.g_point = _block_sums(point_index, np.einsum("nki,nk->ni", J_point, self.r), n_points)
+        self.V = _block_sums(point_index, _outer(P0, P0) + _outer(P1, P1), n_points)
+        self.g_point = _block_sums(point_index, P0 * self.r[:, :1] + P1 * self.r[:, 1:], n_points)
         free = slot[pose_index] >= 0
         s, j = slot[pose_index][free], point_index[free]
-        # left increment: exp(phi) pc + dt, so d pc / d phi = -[pc]x, d pc / d dt = I
-        J_pose = np.concatenate([d_proj[free] @ -skew(pc[free]), d_proj[free]], axis=2)
-        self.U = _block_sums(s, np.einsum("nki,nkj->nij", J_pose, J_pose), n_free)
-        self.g_pose = _block_sums(s, np.einsum("nki,nk->ni", J_pose, self.r[free]), n_free)
-        W = np.einsum("nki,nkj->nij", J_pose, J_point[free])  # (n, 6, 3) pose-point coupling
-        rows = np.broadcast_to((6 * s[:, None] + np.arange(6))[:, :, None], W.shape).ravel()
-        cols = np.broadcast_to((3 * j[:, None] + np.arange(3))[:, None, :], W.shape).ravel()
-        self.W = csr_matrix((W.ravel(), (rows, cols)), shape=(6 * n_free, 3 * n_points))
+        a, b, c, d, x, y, z = (v[free] for v in (a, b, c, d, x, y, pc[:, 2]))
+        zero = np.zeros(len(a))
+        Q0 = np.stack([b * y, a * z - b * x, -a * y, a, zero, b], axis=1)
+        Q1 = np.stack([d * y - c * z, -d * x, c * x, zero, c, d], axis=1)
+        r_free = self.r[free]
+        self.U = _block_sums(s, _outer(Q0, Q0) + _outer(Q1, Q1), n_free)
+        self.g_pose = _block_sums(s, Q0 * r_free[:, :1] + Q1 * r_free[:, 1:], n_free)
+        W = _outer(Q0, P0[free]) + _outer(Q1, P1[free])  # (n, 6, 3) pose-point coupling
+        order = np.argsort(s, kind="stable")
+        indptr = np.searchsorted(s[order], np.arange(n_free + 1))
+        self.W = bsr_matrix((W[order], j[order], indptr), shape=(6 * n_free, 3 * n_points))
 
     def step(self, damping: float) -> tuple[np.ndarray, np.ndarray] | None:
         """Pose increments (P_free, 6) and point increments (M, 3) for one Levenberg-Marquardt
@@ -152,7 +161,7 @@ def _apply(R: np.ndarray, t: np.ndarray, points: np.ndarray, free: np.ndarray, d
     return R, t, points + d_point
 
 
-def _solve(problem: BundleProblem, active: np.ndarray, iterations: int, robust: bool) -> BundleProblem:
+def _solve(problem: BundleProblem, active: np.ndarray, iterations: int, robust: bool, stop: Event | None) -> BundleProblem:
     free = np.flatnonzero(~problem.fixed)
     slot = np.full(len(problem.poses), -1)
     slot[free] = np.arange(len(free))
@@ -160,6 +169,8 @@ def _solve(problem: BundleProblem, active: np.ndarray, iterations: int, robust: 
     damping = 1e-4
     current = _Linearisation(problem, active, slot, R, t, points, robust)
     for _ in range(iterations):
+        if stop is not None and stop.is_set():
+            break
         improved = False
         while damping < 1e8:
             step = current.step(damping)
@@ -181,19 +192,21 @@ def _solve(problem: BundleProblem, active: np.ndarray, iterations: int, robust: 
 
 
 def bundle_adjust(
-    problem: BundleProblem, evaluations: int = 6, outlier_rounds: int = 2, first_gate_chi2: float = 10 * CHI2_2DOF
+    problem: BundleProblem, evaluations: int = 6, outlier_rounds: int = 2, first_gate_chi2: float = 10 * CHI2_2DOF, stop: Event | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Optimised poses (P, 4, 4) ``T_cw``, points (M, 3), and per-observation chi-square errors.
 
     The first round uses the observations under ``first_gate_chi2`` at the start (gross
     outliers out; infinite when the start is too rough to tell); each round runs up to
-    ``evaluations`` Levenberg-Marquardt iterations, then re-classifies all observations."""
+    ``evaluations`` Levenberg-Marquardt iterations, then re-classifies all observations.
+    ``stop`` (ORB-SLAM's abort flag, set by tracking when it needs the mapper) ends the
+    iterations early: what was reached so far is returned."""
     chi2 = observation_chi2(problem, problem.poses, problem.points)
     active = chi2 < first_gate_chi2
     for round_index in range(outlier_rounds):
         if active.sum() < 6:
             break
-        problem = _solve(problem, active, evaluations, robust=round_index == 0)
+        problem = _solve(problem, active, evaluations, round_index == 0, stop)
         chi2 = observation_chi2(problem, problem.poses, problem.points)
         active = chi2 < CHI2_2DOF
     return problem.poses, problem.points, chi2

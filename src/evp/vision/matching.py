@@ -71,22 +71,27 @@ def hamming_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def best_unique_pairs(rows: np.ndarray, cols: np.ndarray, distances: np.ndarray, max_distance: float, ratio: float) -> tuple[np.ndarray, np.ndarray]:
     """:func:`best_unique` over a sparse candidate list (absent pairs count as no match).
 
-    Ties go to the lowest column, as ``argmin`` over a dense table would."""
+    ``distances`` are whole Hamming distances (0-256), so each ordering is one argsort of an
+    integer key (row, distance, column) rather than a lexsort. Ties go to the lowest column, as
+    ``argmin`` over a dense table would."""
     if len(rows) == 0:
         return np.zeros(0, int), np.zeros(0, int)
-    order = np.lexsort((cols, distances, rows))
+    rows, cols = rows.astype(np.int64), cols.astype(np.int64)
+    order = np.argsort((rows * 257 + distances.astype(np.int64)) * (int(cols.max()) + 1) + cols)
     rows, cols, distances = rows[order], cols[order], distances[order]
-    first = np.r_[True, rows[1:] != rows[:-1]]
-    starts = np.flatnonzero(first)
+    starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]])
     has_second = np.r_[starts[1:], len(rows)] - starts > 1
     second = np.full(len(starts), NO_MATCH, np.float32)
     second[has_second] = distances[starts[has_second] + 1]
     best = distances[starts]
     good = (best <= max_distance) & (best < ratio * second)
     rows, cols, best = rows[starts[good]], cols[starts[good]], best[good]
-    order = np.argsort(best, kind="stable")
-    _, claimed = np.unique(cols[order], return_index=True)
-    keep = np.sort(order[claimed])
+    if len(rows) == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    # a column claimed by several rows keeps the closest (the lowest row among equals)
+    order = np.argsort((cols * 257 + best.astype(np.int64)) * (int(rows.max()) + 1) + rows)
+    claimed = order[np.r_[True, cols[order][1:] != cols[order][:-1]]]
+    keep = np.sort(claimed)
     return rows[keep], cols[keep]
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,7 +25,7 @@ from evp.slam.fusion import fuse_points
 from evp.slam.loop_closing import LoopCloser
 from evp.slam.map import KeyFrame, Map
 from evp.slam.map_adjustment import apply_solution, whole_map_problem, window_problem
-from evp.vision.matching import TH_LOW, best_unique, hamming_matrix, rotation_consistent
+from evp.vision.matching import TH_LOW, best_unique_pairs, hamming_pairs, rotation_consistent
 from evp.vision.orb import OrbExtractor
 
 
@@ -41,6 +42,8 @@ class LocalMapper:
         self.settings = settings
         self.K = extractor.camera.K
         self.recent_points: list[int] = []
+        self.stop_adjustment = threading.Event()  # set by tracking when it needs a keyframe mapped
+        self.keyframes_waiting: Callable[[], bool] = lambda: False
         self.loop_closer = LoopCloser(slam_map, extractor, settings) if settings.loop_closing else None
 
     def process(self, item: NewKeyFrame) -> None:
@@ -52,6 +55,8 @@ class LocalMapper:
             self.map.update_covisibility(kf)
             self._cull_recent_points(kf)
             self._triangulate_new_points(kf)
+            if self.keyframes_waiting():  # behind the camera: the next keyframe first (ORB-SLAM)
+                return
             self._fuse_into_neighbours(kf)
             self.map.update_covisibility(kf)
             window = self._local_window(kf)
@@ -68,7 +73,8 @@ class LocalMapper:
         if window is None:
             return
         problem, kf_ids, point_ids = window
-        solution = bundle_adjust(problem, self.settings.ba_evaluations)
+        self.stop_adjustment.clear()
+        solution = bundle_adjust(problem, self.settings.ba_evaluations, stop=self.stop_adjustment)
         with self.map.lock:
             apply_solution(self.map, problem, kf_ids, point_ids, solution, self.extractor.scale_factors)
 
@@ -115,14 +121,11 @@ class LocalMapper:
             if len(free_a) == 0 or len(free_b) == 0:
                 continue
             fa, fb = kf.features, nb.features
-            distances = hamming_matrix(fa.descriptors[free_a], fb.descriptors[free_b])
-            # epipolar constraint: b's keypoint near the line of a's keypoint
-            E = _essential(kf.T_cw, nb.T_cw)
-            lines = np.c_[fa.normalised[free_a], np.ones(len(free_a))] @ E.T  # lines in b (normalised)
-            xb = np.c_[fb.normalised[free_b], np.ones(len(free_b))]
-            d2 = (lines @ xb.T) ** 2 / (lines[:, 0:1] ** 2 + lines[:, 1:2] ** 2) * fx * fx
-            distances[d2 > CHI2_1DOF * sigma2[fb.octave[free_b]][None, :]] = 256
-            rows, cols = best_unique(distances, TH_LOW, 0.6)
+            rows, cols = _epipolar_candidates(
+                _essential(kf.T_cw, nb.T_cw), fa.normalised[free_a], fb.normalised[free_b], np.sqrt(CHI2_1DOF * sigma2[fb.octave[free_b]]) / fx
+            )
+            distances = hamming_pairs(fa.descriptors[free_a[rows]], fb.descriptors[free_b[cols]])
+            rows, cols = best_unique_pairs(rows, cols, distances, TH_LOW, 0.6)
             if len(rows) == 0:
                 continue
             keep = rotation_consistent(fa.angle[free_a][rows], fb.angle[free_b][cols])
@@ -206,6 +209,19 @@ class LocalMapper:
         return False
 
 
+def _epipolar_candidates(E: np.ndarray, xa: np.ndarray, xb: np.ndarray, tolerance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (row of ``xa``, row of ``xb``) of normalised points where b lies within
+    ``tolerance[b]`` (normalised units) of a's epipolar line.
+
+    Found before any descriptor is compared: the band keeps a few percent of all pairs, so only
+    those are matched (float32: one matrix product over all pairs)."""
+    lines = (np.c_[xa, np.ones(len(xa))] @ E.T).astype(np.float32)
+    lines /= np.maximum(np.hypot(lines[:, 0], lines[:, 1]), 1e-12)[:, None]
+    residual = lines @ np.c_[xb, np.ones(len(xb))].astype(np.float32).T
+    np.abs(residual, out=residual)
+    return np.nonzero(residual <= tolerance.astype(np.float32)[None, :])
+
+
 def _essential(T1_cw: np.ndarray, T2_cw: np.ndarray) -> np.ndarray:
     """Essential matrix mapping normalised points of view 1 to epipolar lines in view 2."""
     T21 = T2_cw @ se3_inverse(T1_cw)
@@ -218,6 +234,7 @@ class MappingWorker:
     def __init__(self, mapper: LocalMapper):
         self.mapper = mapper
         self.queue: queue.Queue[NewKeyFrame | None] = queue.Queue()
+        mapper.keyframes_waiting = lambda: not self.queue.empty()
         self.mapping_ms: list[float] = []
         self.max_queue = 0
         self.error: BaseException | None = None
@@ -233,6 +250,10 @@ class MappingWorker:
     def pending(self) -> int:
         """Keyframes waiting in the queue (not counting the one being processed)."""
         return self.queue.qsize()
+
+    def interrupt(self) -> None:
+        """Tracking needs a keyframe: cut the running bundle adjustment short (ORB-SLAM's InterruptBA)."""
+        self.mapper.stop_adjustment.set()
 
     def submit(self, item: NewKeyFrame) -> None:
         self._busy.set()
@@ -279,6 +300,9 @@ class InlineMapping:
         self.idle = True
         self.pending = 0
         self._queue: list[NewKeyFrame] = []
+
+    def interrupt(self) -> None:
+        """Never busy while tracking runs: nothing to interrupt."""
 
     def submit(self, item: NewKeyFrame) -> None:
         self._queue.append(item)

@@ -404,8 +404,12 @@ class SlamSystem:
         weak = inliers < 0.5 * ref_matches  # the map is slipping away (fast forward motion)
         c1 = since_kf >= s.keyframe_max_frames or idle or weak
         c2 = inliers < s.keyframe_ref_ratio * ref_matches and inliers > 15
+        if not (c1 and c2):
+            return False
+        if not idle:
+            self.mapping.interrupt()
         # a busy mapper still takes a keyframe when tracking is weak, one at a time
-        return bool(c1 and c2 and (idle or (weak and self.mapping.pending == 0)))
+        return idle or (weak and self.mapping.pending == 0)
 
     def _insert_keyframe(self, timestamp: float, features: Features, T_cw: np.ndarray, matched: np.ndarray, grey: np.ndarray) -> None:
         kf = self.map.add_keyframe(timestamp, T_cw, features, thumbnail(grey))

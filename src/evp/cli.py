@@ -68,6 +68,12 @@ def run(
     out: Path = typer.Option(..., "--out", help="Folder for trajectory.tum, metrics.json, plots, settings."),
     config: Path | None = typer.Option(None, "--config", help="Settings YAML (EVP layout or ORB-SLAM settings)."),
     fmt: str | None = typer.Option(None, "--format", help="Reader name, to skip auto-detection."),
+    realtime: bool = typer.Option(
+        False,
+        "--realtime",
+        help="Replay at the recorded frame rate, always feeding the newest frame and dropping those that arrive while the estimator is busy, as the base station does live (default: every frame, as fast as possible).",
+    ),
+    speed: float = typer.Option(1.0, "--speed", min=0.01, help="With --realtime: play the recording this many times faster."),
 ) -> None:
     """Estimate the camera trajectory of a dataset and evaluate it when ground truth exists."""
     from rich.console import Console
@@ -85,7 +91,9 @@ def run(
     estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
     with Progress(transient=True) as progress:
         task = progress.add_task(f"{dataset.name}", total=dataset.num_frames)
-        result = run_dataset(dataset, estimator, lambda n: progress.advance(task, n), settings.orb.n_features)
+        # a real-time replay has no spare time to also run OpenCV's ORB on each frame
+        reference_orb = None if realtime else settings.orb.n_features
+        result = run_dataset(dataset, estimator, lambda n: progress.advance(task, n), reference_orb, speed if realtime else None)
     if result.refiner is not None:  # a survey adjustment or a global bundle adjustment: seconds after the last frame
         with Console(stderr=True).status(f"{dataset.name}: refining the trajectory (end of run)"):
             result.final_trajectory()  # estimators keep what this costs; write_outputs asks again
@@ -93,6 +101,7 @@ def run(
     typer.echo(
         f"{dataset.name}: tracked {metrics['tracked_frames']}/{metrics['frames']} frames "
         f"({100 * metrics['tracked_fraction']:.1f} %), first tracked frame {metrics['init_frame']}"
+        + (f", {metrics['frames_dropped']} dropped by the real-time replay (x{speed:g})" if realtime is not None else "")
     )
     if "rmse" in metrics:
         typer.echo(

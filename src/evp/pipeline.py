@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -20,7 +20,7 @@ from evp.errors import DatasetError, EvaluationError, EvpError
 from evp.estimator import Estimator, Refining, SelfCalibrating
 from evp.io.dataset import Dataset
 from evp.io.trajectory import Trajectory, write_trajectory
-from evp.types import PoseEstimate, TrackingState
+from evp.types import Frame, PoseEstimate, TrackingState
 
 if TYPE_CHECKING:
     from evp.slam.system import SlamSystem
@@ -33,6 +33,7 @@ class RunResult:
     estimates: list[PoseEstimate] = field(default_factory=list)
     tracking_ms: list[float] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)  # why frames were not used
+    dropped: list[int] = field(default_factory=list)  # frames a real-time replay had no time for
     reference_orb_ms: list[float] = field(default_factory=list)  # OpenCV ORB on the same frames
     slam: SlamSystem | None = None  # the engine, when the estimator builds a map
     refiner: Refining | None = None  # the estimator, when it can refine its trajectory at the end
@@ -74,19 +75,37 @@ class RunResult:
         return Trajectory.from_poses(poses, stamps, "estimate")
 
 
-def run_dataset(dataset: Dataset, estimator: Estimator, progress: Callable[[int], None] | None = None, reference_orb_features: int | None = None) -> RunResult:
+def run_dataset(
+    dataset: Dataset,
+    estimator: Estimator,
+    progress: Callable[[int], None] | None = None,
+    reference_orb_features: int | None = None,
+    realtime_speed: float | None = None,
+) -> RunResult:
     """Feed every frame; undecodable or rejected frames are skipped and reported, never fatal.
 
     With ``reference_orb_features``, OpenCV's own ORB (that many features) is timed on each frame
     too, outside the tracking time, so that speed can be reported as a ratio measured in one run.
+    With ``realtime_speed``, frames arrive at their recorded pace times that factor and the
+    estimator always gets the newest one, as on the base station: frames that arrive while it is
+    busy are dropped (``RunResult.dropped``).
     """
     from evp.slam.system import SlamSystem
 
     result = RunResult(slam=estimator if isinstance(estimator, SlamSystem) else None, refiner=estimator if isinstance(estimator, Refining) else None)
     reference_orb = cv2.ORB_create(reference_orb_features) if reference_orb_features else None
     errors: list[DatasetError] = []
+    frames = dataset.frames(errors)
+    if realtime_speed is not None:
+
+        def drop(frame: Frame) -> None:
+            result.dropped.append(frame.index)
+            if progress:
+                progress(1)
+
+        frames = paced_frames(frames, realtime_speed, drop)
     last_stamp = -np.inf
-    for frame in dataset.frames(errors):
+    for frame in frames:
         if frame.timestamp <= last_stamp:
             result.skipped.append(f"frame {frame.index}: timestamp {frame.timestamp!r} does not increase")
         else:
@@ -107,6 +126,38 @@ def run_dataset(dataset: Dataset, estimator: Estimator, progress: Callable[[int]
         result.slam.finish()
     result.skipped += [str(e) for e in errors]
     return result
+
+
+def paced_frames(
+    frames: Iterable[Frame],
+    speed: float,
+    on_drop: Callable[[Frame], None],
+    clock: Callable[[], float] = time.perf_counter,
+    sleep: Callable[[float], None] = time.sleep,
+) -> Iterator[Frame]:
+    """``frames`` released at their recorded pace (times ``speed``); each request gets the newest
+    released frame, and a frame overtaken by a newer one before it was requested goes to
+    ``on_drop``. A frame whose stamp does not increase is passed on at once (the caller rejects it)."""
+    if speed <= 0:
+        raise ValueError(f"real-time speed must be positive, not {speed}")
+    waiting: Frame | None = None
+    start_wall = start_stamp = 0.0
+    for frame in frames:
+        if waiting is None:
+            start_wall, start_stamp = clock(), frame.timestamp
+        elif frame.timestamp <= waiting.timestamp:
+            yield frame
+            continue
+        release = start_wall + (frame.timestamp - start_stamp) / speed
+        if waiting is not None:
+            if clock() < release:
+                yield waiting
+            else:
+                on_drop(waiting)
+        sleep(max(0.0, release - clock()))
+        waiting = frame
+    if waiting is not None:
+        yield waiting
 
 
 def _time_reference_orb(orb: cv2.ORB, image: np.ndarray) -> float:
@@ -172,6 +223,7 @@ def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: 
     metrics: dict = {
         "frames": dataset.num_frames,
         "frames_fed": len(result.estimates),
+        "frames_dropped": len(result.dropped),
         "tracked_frames": len(trajectory),
         "tracked_fraction": len(trajectory) / max(1, dataset.num_frames),
         "init_frame": result.init_frame,

@@ -76,3 +76,32 @@ def test_bundle_adjustment_flags_moderate_outliers_and_ends_exact():
     assert np.all(chi2[bad] > 5.991)
     good = np.setdiff1d(np.arange(len(observed)), bad)
     assert np.all(chi2[good] < 5.991)
+
+
+class _StopAfter:
+    """A stop flag that is raised after ``checks`` looks (tracking asking for the mapper mid-solve)."""
+
+    def __init__(self, checks: int):
+        self.checks = checks
+
+    def is_set(self) -> bool:
+        self.checks -= 1
+        return self.checks < 0
+
+
+def test_a_stopped_bundle_adjustment_returns_what_it_reached():
+    rng = np.random.default_rng(3)
+    points, truth, pose_index, point_index, observed = _six_views(rng)
+    perturbed = truth.copy()
+    for T in perturbed[2:]:
+        T[:3, 3] += rng.normal(0, 0.01, 3)
+    fixed = np.array([True, True, False, False, False, False])
+    problem = BundleProblem(perturbed, points, pose_index, point_index, observed, np.ones(len(observed)), fixed, K)
+    start_error = np.abs(perturbed - truth).max()
+    poses, _, _ = bundle_adjust(problem, evaluations=20, stop=_StopAfter(0))
+    assert np.allclose(poses, perturbed, rtol=0, atol=1e-12)  # stopped before the first iteration: untouched
+    poses, _, _ = bundle_adjust(problem, evaluations=20, stop=_StopAfter(1))
+    one_step_error = np.abs(poses - truth).max()
+    assert one_step_error < 0.5 * start_error  # one iteration kept
+    poses, _, _ = bundle_adjust(problem, evaluations=20)
+    assert np.abs(poses - truth).max() < min(1e-6, one_step_error)

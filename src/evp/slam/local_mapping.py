@@ -12,7 +12,8 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,7 +21,8 @@ import numpy as np
 from evp.config import SlamSettings
 from evp.geometry.transforms import se3_inverse, skew
 from evp.geometry.two_view import CHI2_1DOF, check_points, triangulate
-from evp.slam.bundle_adjustment import BundleProblem, bundle_adjust
+from evp.slam.adjustment_process import LocalAdjustment
+from evp.slam.bundle_adjustment import BundleProblem
 from evp.slam.fusion import fuse_points
 from evp.slam.loop_closing import LoopCloser
 from evp.slam.map import KeyFrame, Map
@@ -36,45 +38,55 @@ class NewKeyFrame:
 
 
 class LocalMapper:
-    def __init__(self, slam_map: Map, extractor: OrbExtractor, settings: SlamSettings):
+    def __init__(self, slam_map: Map, extractor: OrbExtractor, settings: SlamSettings, adjuster: LocalAdjustment | None = None):
         self.map = slam_map
         self.extractor = extractor
         self.settings = settings
         self.K = extractor.camera.K
+        self.adjuster = adjuster or LocalAdjustment()  # tracking may interrupt its local windows
         self.recent_points: list[int] = []
-        self.stop_adjustment = threading.Event()  # set by tracking when it needs a keyframe mapped
         self.keyframes_waiting: Callable[[], bool] = lambda: False
         self.loop_closer = LoopCloser(slam_map, extractor, settings) if settings.loop_closing else None
 
     def process(self, item: NewKeyFrame) -> None:
         kf = item.keyframe
-        with self.map.lock:
+        with self._locked():
             if kf.id not in self.map.keyframes:
                 return
             self._register_observations(kf, item.matched_points)
             self.map.update_covisibility(kf)
             self._cull_recent_points(kf)
-            self._triangulate_new_points(kf)
-            if self.keyframes_waiting():  # behind the camera: the next keyframe first (ORB-SLAM)
-                return
-            self._fuse_into_neighbours(kf)
+        self._triangulate_new_points(kf)
+        if self.keyframes_waiting():  # behind the camera: the next keyframe first (ORB-SLAM)
+            return
+        self._fuse_into_neighbours(kf)
+        with self._locked():
             self.map.update_covisibility(kf)
             window = self._local_window(kf)
-        self._adjust(window)
-        with self.map.lock:
+        self._adjust(window, interruptible=True)
+        with self._locked():
             self._cull_keyframes(kf)
+        with self._locked():
             closed = self.loop_closer is not None and self.loop_closer.process(kf) is not None
             window = whole_map_problem(self.map, self.extractor.scale_factors, self.K) if closed else None
-        self._adjust(window)
+        self._adjust(window, interruptible=False)
 
-    def _adjust(self, window: tuple[BundleProblem, list[int], list[int]] | None) -> None:
+    @contextmanager
+    def _locked(self) -> Iterator[None]:
+        """The map lock for one step of the work (a step for each neighbour where the work is per
+        neighbour). Held for a whole keyframe, it kept tracking waiting up to 0.2 s; on release the
+        thread yields, since Python's locks are not fair and tracking may be waiting for it."""
+        with self.map.lock:
+            yield
+        time.sleep(0)
+
+    def _adjust(self, window: tuple[BundleProblem, list[int], list[int]] | None, interruptible: bool) -> None:
         """Bundle adjustment solved on a snapshot without the map lock (tracking goes on), the
         solution written back with it."""
         if window is None:
             return
         problem, kf_ids, point_ids = window
-        self.stop_adjustment.clear()
-        solution = bundle_adjust(problem, self.settings.ba_evaluations, stop=self.stop_adjustment)
+        solution = self.adjuster.solve(problem, self.settings.ba_evaluations, interruptible)
         with self.map.lock:
             apply_solution(self.map, problem, kf_ids, point_ids, solution, self.extractor.scale_factors)
 
@@ -108,45 +120,50 @@ class LocalMapper:
         sigma2 = self.extractor.level_sigma2
         scale = self.extractor.settings.scale_factor
         fx = self.K[0, 0]
-        created: list[int] = []
         for neighbour_id in kf.best_covisible(s.covisible_keyframes):
-            nb = self.map.keyframes.get(neighbour_id)
-            if nb is None:
+            with self._locked():
+                nb = self.map.keyframes.get(neighbour_id)
+                if nb is not None:
+                    self._triangulate_with(kf, nb, sigma2, scale, fx)
+
+    def _triangulate_with(self, kf: KeyFrame, nb: KeyFrame, sigma2: np.ndarray, scale: float, fx: float) -> None:
+        """New points from unmatched features of two keyframes (epipolar band, descriptor ratio,
+        rotation consistency, parallax, reprojection and scale checks)."""
+        baseline = np.linalg.norm(kf.centre - nb.centre)
+        if baseline / max(self.map.median_depth(nb), 1e-9) < 0.01:
+            return
+        free_a = np.flatnonzero(kf.point_ids < 0)
+        free_b = np.flatnonzero(nb.point_ids < 0)
+        if len(free_a) == 0 or len(free_b) == 0:
+            return
+        fa, fb = kf.features, nb.features
+        rows, cols = _epipolar_candidates(
+            _essential(kf.T_cw, nb.T_cw), fa.normalised[free_a], fb.normalised[free_b], np.sqrt(CHI2_1DOF * sigma2[fb.octave[free_b]]) / fx
+        )
+        distances = hamming_pairs(fa.descriptors[free_a[rows]], fb.descriptors[free_b[cols]])
+        rows, cols = best_unique_pairs(rows, cols, distances, TH_LOW, 0.6)
+        if len(rows) == 0:
+            return
+        keep = rotation_consistent(fa.angle[free_a][rows], fb.angle[free_b][cols])
+        ia, ib = free_a[rows[keep]], free_b[cols[keep]]
+        points = triangulate(kf.T_cw, nb.T_cw, fa.normalised[ia], fb.normalised[ib])
+        good, _ = check_points(points, kf.T_cw, nb.T_cw, fa.normalised[ia], fb.normalised[ib], fx, sigma2[fa.octave[ia]], sigma2[fb.octave[ib]])
+        # scale consistency: distance ratio agrees with the octave ratio
+        da = np.linalg.norm(points - kf.centre, axis=1)
+        db = np.linalg.norm(points - nb.centre, axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio_dist = da / db
+            ratio_octave = self.extractor.scale_factors[fa.octave[ia]] / self.extractor.scale_factors[fb.octave[ib]]
+        factor = 1.5 * scale
+        good &= (ratio_dist * factor > ratio_octave) & (ratio_dist < ratio_octave * factor)
+        created: list[int] = []
+        for a, b, position in zip(ia[good], ib[good], points[good], strict=True):
+            if kf.point_ids[a] >= 0 or nb.point_ids[b] >= 0:
                 continue
-            baseline = np.linalg.norm(kf.centre - nb.centre)
-            if baseline / max(self.map.median_depth(nb), 1e-9) < 0.01:
-                continue
-            free_a = np.flatnonzero(kf.point_ids < 0)
-            free_b = np.flatnonzero(nb.point_ids < 0)
-            if len(free_a) == 0 or len(free_b) == 0:
-                continue
-            fa, fb = kf.features, nb.features
-            rows, cols = _epipolar_candidates(
-                _essential(kf.T_cw, nb.T_cw), fa.normalised[free_a], fb.normalised[free_b], np.sqrt(CHI2_1DOF * sigma2[fb.octave[free_b]]) / fx
-            )
-            distances = hamming_pairs(fa.descriptors[free_a[rows]], fb.descriptors[free_b[cols]])
-            rows, cols = best_unique_pairs(rows, cols, distances, TH_LOW, 0.6)
-            if len(rows) == 0:
-                continue
-            keep = rotation_consistent(fa.angle[free_a][rows], fb.angle[free_b][cols])
-            ia, ib = free_a[rows[keep]], free_b[cols[keep]]
-            points = triangulate(kf.T_cw, nb.T_cw, fa.normalised[ia], fb.normalised[ib])
-            good, _ = check_points(points, kf.T_cw, nb.T_cw, fa.normalised[ia], fb.normalised[ib], fx, sigma2[fa.octave[ia]], sigma2[fb.octave[ib]])
-            # scale consistency: distance ratio agrees with the octave ratio
-            da = np.linalg.norm(points - kf.centre, axis=1)
-            db = np.linalg.norm(points - nb.centre, axis=1)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                ratio_dist = da / db
-                ratio_octave = self.extractor.scale_factors[fa.octave[ia]] / self.extractor.scale_factors[fb.octave[ib]]
-            factor = 1.5 * scale
-            good &= (ratio_dist * factor > ratio_octave) & (ratio_dist < ratio_octave * factor)
-            for a, b, position in zip(ia[good], ib[good], points[good], strict=True):
-                if kf.point_ids[a] >= 0 or nb.point_ids[b] >= 0:
-                    continue
-                point = self.map.add_point(position, fa.descriptors[a], kf.id)
-                self.map.add_observation(point, kf, int(a))
-                self.map.add_observation(point, nb, int(b))
-                created.append(point.id)
+            point = self.map.add_point(position, fa.descriptors[a], kf.id)
+            self.map.add_observation(point, kf, int(a))
+            self.map.add_observation(point, nb, int(b))
+            created.append(point.id)
         self.map.refresh_points(created, self.extractor.scale_factors)
         self.recent_points += created
 
@@ -154,9 +171,10 @@ class LocalMapper:
         """Project the keyframe's points into its neighbours (ORB-SLAM's Fuse)."""
         ids = [int(i) for i in kf.point_ids[kf.point_ids >= 0]]
         for neighbour_id in kf.best_covisible(self.settings.covisible_keyframes):
-            nb = self.map.keyframes.get(neighbour_id)
-            if nb is not None:
-                fuse_points(self.map, self.extractor, self.K, nb, ids)
+            with self._locked():
+                nb = self.map.keyframes.get(neighbour_id)
+                if nb is not None:
+                    fuse_points(self.map, self.extractor, self.K, nb, ids)
 
     def _local_window(self, kf: KeyFrame) -> tuple[BundleProblem, list[int], list[int]] | None:
         """The keyframe and its best covisible neighbours, free; other keyframes seeing their
@@ -253,7 +271,7 @@ class MappingWorker:
 
     def interrupt(self) -> None:
         """Tracking needs a keyframe: cut the running bundle adjustment short (ORB-SLAM's InterruptBA)."""
-        self.mapper.stop_adjustment.set()
+        self.mapper.adjuster.interrupt()
 
     def submit(self, item: NewKeyFrame) -> None:
         self._busy.set()
@@ -281,6 +299,7 @@ class MappingWorker:
     def finish(self) -> None:
         self.queue.put(None)
         self._thread.join()
+        self.mapper.adjuster.close()
         if self.error is not None:
             raise self.error
 

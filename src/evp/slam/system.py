@@ -21,6 +21,7 @@ import numpy as np
 from evp.config import OrbSettings, SlamSettings
 from evp.geometry.transforms import scale_motion, se3_inverse
 from evp.geometry.two_view import initial_two_view
+from evp.slam.adjustment_process import AdjustmentProcess
 from evp.slam.local_mapping import InlineMapping, LocalMapper, MappingWorker, NewKeyFrame
 from evp.slam.loop_closing import LoopClosure
 from evp.slam.map import KeyFrame, Map
@@ -69,8 +70,10 @@ class SlamSystem:
         self.K = camera.K
         self.bounds = undistorted_bounds(self.extractor)
         self.map = Map()
-        mapper = LocalMapper(self.map, self.extractor, self.settings)
-        self.mapping = MappingWorker(mapper) if self.settings.mapping == "thread" else InlineMapping(mapper)
+        if self.settings.mapping == "thread":
+            self.mapping: MappingWorker | InlineMapping = MappingWorker(LocalMapper(self.map, self.extractor, self.settings, AdjustmentProcess()))
+        else:
+            self.mapping = InlineMapping(LocalMapper(self.map, self.extractor, self.settings))
         self.state = TrackingState.NOT_INITIALIZED
         self.extraction_ms: list[float] = []
         self.tracking_ms: list[float] = []  # per frame, without mapping

@@ -1,0 +1,85 @@
+"""Bundle adjustments solved in a helper process, for live mapping.
+
+Python runs one thread at a time: a local bundle adjustment in the mapping thread (hundreds of
+small NumPy calls per window) keeps taking the interpreter from tracking, which then misses
+frames. In its own process the solve runs beside tracking on the second core; the problem and the
+solution travel as a few hundred kB of arrays. Tracking's stop request (ORB-SLAM's InterruptBA)
+reaches the helper through a process-shared event.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import threading
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+
+import numpy as np
+
+from evp.slam.bundle_adjustment import BundleProblem, bundle_adjust
+
+log = logging.getLogger(__name__)
+
+_stop = None  # the helper's view of the stop event (set by _start_helper)
+
+
+def _start_helper(stop) -> None:
+    global _stop
+    _stop = stop
+
+
+def _solve_in_helper(problem: BundleProblem, evaluations: int, interruptible: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return bundle_adjust(problem, evaluations, stop=_stop if interruptible else None)
+
+
+class LocalAdjustment:
+    """Bundle adjustments solved in the calling thread (inline mapping, tests, replays)."""
+
+    def __init__(self, stop=None) -> None:
+        self.stop = stop if stop is not None else threading.Event()
+
+    def solve(self, problem: BundleProblem, evaluations: int, interruptible: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Poses, points and chi-square errors; ``interruptible`` solves (local windows) end early
+        on :meth:`interrupt`, a global adjustment after a loop does not."""
+        if interruptible:
+            self.stop.clear()
+        return bundle_adjust(problem, evaluations, stop=self.stop if interruptible else None)
+
+    def interrupt(self) -> None:
+        self.stop.set()
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
+class AdjustmentProcess(LocalAdjustment):
+    """The same, solved in one helper process; ``solve`` blocks the calling (mapping) thread, not
+    the interpreter.
+
+    forkserver, not fork: the parent already runs threads (tracking, mapping, OpenBLAS), which a
+    forked child would inherit in whatever state they were. Should the helper die (killed for
+    memory), solves fall back to the calling thread with a warning: mapping goes on, slower. So do
+    the first solves, while the helper is still starting."""
+
+    def __init__(self) -> None:
+        context = multiprocessing.get_context("forkserver")
+        super().__init__(context.Event())
+        self._pool: ProcessPoolExecutor | None = ProcessPoolExecutor(1, mp_context=context, initializer=_start_helper, initargs=(self.stop,))
+        self._ready = self._pool.submit(int)  # the helper starts in ~2 s (imports); solves wait for none of it
+
+    def solve(self, problem: BundleProblem, evaluations: int, interruptible: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if self._pool is not None and self._ready.done():
+            if interruptible:
+                self.stop.clear()
+            try:
+                return self._pool.submit(_solve_in_helper, problem, evaluations, interruptible).result()
+            except BrokenProcessPool:
+                log.warning("the bundle adjustment helper process died; adjusting in the mapping thread from now on")
+                self._pool = None
+        return super().solve(problem, evaluations, interruptible)
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None

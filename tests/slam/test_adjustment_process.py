@@ -1,0 +1,54 @@
+"""Live mapping's bundle adjustments run in a helper process: same answers as in the thread, and
+mapping survives the helper's death."""
+
+import logging
+import os
+import signal
+
+import numpy as np
+import pytest
+
+from evp.slam.adjustment_process import AdjustmentProcess, LocalAdjustment
+from evp.slam.bundle_adjustment import BundleProblem
+from tests.slam.test_optimisation import K, _six_views
+
+
+@pytest.fixture
+def problem():
+    rng = np.random.default_rng(4)
+    points, truth, pose_index, point_index, observed = _six_views(rng)
+    perturbed = truth.copy()
+    for T in perturbed[2:]:
+        T[:3, 3] += rng.normal(0, 0.01, 3)
+    fixed = np.array([True, True, False, False, False, False])
+    return BundleProblem(perturbed, points, pose_index, point_index, observed, np.ones(len(observed)), fixed, K), truth
+
+
+@pytest.fixture
+def helper():
+    adjuster = AdjustmentProcess()
+    adjuster._ready.result(timeout=60)  # started (it is skipped until then)
+    yield adjuster
+    adjuster.close()
+
+
+def test_helper_process_solves_as_the_thread_does(problem, helper):
+    bundle, truth = problem
+    remote = helper.solve(bundle, 20)
+    local = LocalAdjustment().solve(bundle, 20)
+    for a, b in zip(remote, local, strict=True):
+        assert np.array_equal(a, b)
+    assert np.abs(remote[0] - truth).max() < 1e-6
+    # a global adjustment (not interruptible) takes the same path
+    assert np.array_equal(helper.solve(bundle, 20, interruptible=False)[0], local[0])
+
+
+def test_mapping_goes_on_in_the_thread_when_the_helper_dies(problem, helper, caplog):
+    bundle, truth = problem
+    for pid in list(helper._pool._processes):
+        os.kill(pid, signal.SIGKILL)
+    with caplog.at_level(logging.WARNING, logger="evp.slam.adjustment_process"):
+        poses, _, _ = helper.solve(bundle, 20)
+    assert np.abs(poses - truth).max() < 1e-6
+    assert "helper process died" in caplog.text
+    assert np.abs(helper.solve(bundle, 20)[0] - truth).max() < 1e-6  # and from then on

@@ -27,7 +27,6 @@ def problem():
 @pytest.fixture
 def helper():
     adjuster = AdjustmentProcess()
-    adjuster._ready.result(timeout=60)  # started (it is skipped until then)
     yield adjuster
     adjuster.close()
 

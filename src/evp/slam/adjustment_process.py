@@ -59,17 +59,22 @@ class AdjustmentProcess(LocalAdjustment):
 
     forkserver, not fork: the parent already runs threads (tracking, mapping, OpenBLAS), which a
     forked child would inherit in whatever state they were. Should the helper die (killed for
-    memory), solves fall back to the calling thread with a warning: mapping goes on, slower. So do
-    the first solves, while the helper is still starting."""
+    memory), solves fall back to the calling thread with a warning: mapping goes on, slower."""
 
     def __init__(self) -> None:
         context = multiprocessing.get_context("forkserver")
         super().__init__(context.Event())
         self._pool: ProcessPoolExecutor | None = ProcessPoolExecutor(1, mp_context=context, initializer=_start_helper, initargs=(self.stop,))
-        self._ready = self._pool.submit(int)  # the helper starts in ~2 s (imports); solves wait for none of it
+        # wait for the helper (its imports take ~2 s of CPU): started during a live run, it would
+        # take that from tracking just when the map is being built
+        try:
+            self._pool.submit(int).result(timeout=120)
+        except Exception as exc:  # noqa: BLE001 - any failure to start means: adjust in the thread
+            log.warning("no bundle adjustment helper process (%s); adjusting in the mapping thread", exc)
+            self._pool = None
 
     def solve(self, problem: BundleProblem, evaluations: int, interruptible: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        if self._pool is not None and self._ready.done():
+        if self._pool is not None:
             if interruptible:
                 self.stop.clear()
             try:

@@ -22,6 +22,7 @@ def fuse_points(slam_map: Map, extractor: OrbExtractor, K: np.ndarray, kf: KeyFr
     radius = radius_px * extractor.scale_factors[projected.level]
     descriptors = slam_map.store.descriptor[np.asarray(candidates)[projected.rows]]
     a, b = match_in_window(descriptors, projected.uv, kf.features.descriptors, kf.features.un_px, radius, TH_LOW, 1.0, projected.level, kf.features.octave)
+    merged: set[int] = set()
     for r, index in zip(a, b, strict=True):
         point = slam_map.points.get(candidates[projected.rows[r]])
         if point is None or kf.id in point.observations:
@@ -30,6 +31,8 @@ def fuse_points(slam_map: Map, extractor: OrbExtractor, K: np.ndarray, kf: KeyFr
         if existing >= 0 and existing in slam_map.points:
             keep, drop = (existing, point.id) if len(slam_map.points[existing].observations) >= len(point.observations) else (point.id, existing)
             slam_map.replace_point(drop, keep)
-            slam_map.refresh_points([keep], extractor.scale_factors)
+            merged.add(keep)
         else:
             slam_map.add_observation(point, kf, int(index))
+    # once for all merges (one call per merge was a third of local mapping's time)
+    slam_map.refresh_points([i for i in merged if i in slam_map.points], extractor.scale_factors)

@@ -202,62 +202,88 @@ class Map:
 
     # --- derived state ------------------------------------------------------------------
 
+    def observation_table(self, point_ids: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every observation of ``point_ids`` by a live keyframe, point by point: (position in
+        ``point_ids``, keyframe id, feature index) as three integer arrays. The one walk over the
+        observation dictionaries that map-wide computations need; the rest is array work."""
+        rows, kf_ids, indices = [], [], []
+        keyframes = self.keyframes
+        for row, point_id in enumerate(point_ids):
+            for kf_id, index in self.points[point_id].observations.items():
+                if kf_id in keyframes:
+                    rows.append(row)
+                    kf_ids.append(kf_id)
+                    indices.append(index)
+        return np.array(rows, int), np.array(kf_ids, int), np.array(indices, int)
+
+    def gather_features(self, kf_ids: np.ndarray, indices: np.ndarray, attribute: str) -> np.ndarray:
+        """``features.<attribute>[index]`` of each (keyframe, feature index) pair: one fancy
+        index per keyframe instead of one per observation."""
+        order = np.argsort(kf_ids, kind="stable")
+        unique, starts = np.unique(kf_ids[order], return_index=True)
+        bounds = np.r_[starts, len(order)]
+        out = None
+        for u, kf_id in enumerate(unique.tolist()):
+            column = getattr(self.keyframes[kf_id].features, attribute)
+            if out is None:
+                out = np.zeros((len(kf_ids), *column.shape[1:]), column.dtype)
+            rows = order[bounds[u] : bounds[u + 1]]
+            out[rows] = column[indices[rows]]
+        return out if out is not None else np.zeros(0)
+
     def refresh_points(self, point_ids: list[int], scale_factors: np.ndarray, descriptor: bool = True) -> None:
         """:meth:`update_geometry` of the points; with ``descriptor``, also each one's
         representative descriptor: of its observations' descriptors, the one with the least
         median Hamming distance to the others (points with as many observations go together)."""
-        self.update_geometry(point_ids, scale_factors)
+        rows, kf_ids, indices = self.observation_table(point_ids)
+        if len(rows) == 0:
+            return
+        self._update_geometry(point_ids, rows, kf_ids, indices, scale_factors)
         if not descriptor:
             return
-        by_count: dict[int, tuple[list[int], list[np.ndarray]]] = {}
-        for point_id in point_ids:
-            rows = [self.keyframes[k].features.descriptors[i] for k, i in self.points[point_id].observations.items() if k in self.keyframes]
-            if rows:
-                ids, stacks = by_count.setdefault(len(rows), ([], []))
-                ids.append(point_id)
-                stacks.append(rows)
-        for count, (ids, stacks) in by_count.items():
-            descriptors = np.array(stacks, np.uint8)  # (points, count, 32)
-            best = np.zeros(len(ids), int)
+        descriptors = self.gather_features(kf_ids, indices, "descriptors")
+        counts = np.bincount(rows, minlength=len(point_ids))
+        starts = np.r_[0, np.cumsum(counts)[:-1]]
+        ids = np.asarray(point_ids, int)
+        for count in np.unique(counts[counts > 0]).tolist():
+            group = np.flatnonzero(counts == count)
+            stacks = descriptors[starts[group][:, None] + np.arange(count)]  # (points, count, 32)
+            best = np.zeros(len(group), int)
             if count > 2:
-                pairs = (len(ids), count, count, 32)
-                a = np.broadcast_to(descriptors[:, :, None, :], pairs).reshape(-1, 32)
-                b = np.broadcast_to(descriptors[:, None, :, :], pairs).reshape(-1, 32)
+                pairs = (len(group), count, count, 32)
+                a = np.broadcast_to(stacks[:, :, None, :], pairs).reshape(-1, 32)
+                b = np.broadcast_to(stacks[:, None, :, :], pairs).reshape(-1, 32)
                 distances = hamming_pairs(a, b).reshape(pairs[:3])
                 best = np.argmin(np.median(distances, axis=2), axis=1)
-            self.store.descriptor[np.array(ids)] = descriptors[np.arange(len(ids)), best]
+            self.store.descriptor[ids[group]] = stacks[np.arange(len(group)), best]
 
     def update_geometry(self, point_ids: list[int], scale_factors: np.ndarray) -> None:
         """Mean viewing direction and scale-invariance distance range of points, from the
         keyframes observing them (the range from the first keyframe's view and octave)."""
-        rows, centres, ref_rows, ref_centres, ref_octaves = [], [], [], [], []
-        for row, point_id in enumerate(point_ids):
-            point = self.points[point_id]
-            reference = None
-            for kf_id, index in point.observations.items():
-                kf = self.keyframes.get(kf_id)
-                if kf is None:
-                    continue
-                rows.append(row)
-                centres.append(kf.centre)
-                if reference is None or kf_id == point.first_kf:
-                    reference = (kf, index)
-            if reference is not None:
-                ref_rows.append(row)
-                ref_centres.append(reference[0].centre)
-                ref_octaves.append(reference[0].features.octave[reference[1]])
-        if not rows:
-            return
+        rows, kf_ids, indices = self.observation_table(point_ids)
+        if len(rows):
+            self._update_geometry(point_ids, rows, kf_ids, indices, scale_factors)
+
+    def _update_geometry(self, point_ids: list[int], rows: np.ndarray, kf_ids: np.ndarray, indices: np.ndarray, scale_factors: np.ndarray) -> None:
         ids = np.asarray(point_ids, int)
+        involved = np.unique(kf_ids)
+        centres = np.array([self.keyframes[k].centre for k in involved.tolist()])[np.searchsorted(involved, kf_ids)]
         positions = self.store.position[ids]
-        rows_array = np.array(rows)
-        rays = positions[rows_array] - np.array(centres)
+        rays = positions[rows] - centres
         rays /= np.maximum(np.sqrt(np.einsum("ij,ij->i", rays, rays)), 1e-12)[:, None]
-        normal = np.stack([np.bincount(rows_array, rays[:, axis], len(ids)) for axis in range(3)], axis=1)
-        observed = np.array(ref_rows)
+        normal = np.stack([np.bincount(rows, rays[:, axis], len(ids)) for axis in range(3)], axis=1)
+        # the reference view: the point's first keyframe's when it still sees it, else the first
+        observed, first = np.unique(rows, return_index=True)
+        first_kf = np.array([self.points[p].first_kf for p in point_ids])
+        by_first = np.flatnonzero(kf_ids == first_kf[rows])
+        reference = np.zeros(len(ids), int)
+        reference[observed] = first
+        reference[rows[by_first]] = by_first
+        reference = reference[observed]
         normal = normal[observed]
         self.store.normal[ids[observed]] = normal / np.maximum(np.linalg.norm(normal, axis=1), 1e-12)[:, None]
-        max_distance = np.linalg.norm(positions[observed] - np.array(ref_centres), axis=1) * scale_factors[np.array(ref_octaves)]
+        octaves = self.gather_features(kf_ids[reference], indices[reference], "octave")
+        max_distance = np.linalg.norm(positions[observed] - centres[reference], axis=1) * scale_factors[octaves]
         self.store.max_distance[ids[observed]] = max_distance
         self.store.min_distance[ids[observed]] = max_distance / scale_factors[-1]
 

@@ -13,23 +13,22 @@ from evp.slam.map import Map
 
 def window_problem(slam_map: Map, kf_ids: list[int], point_ids: list[int], fixed: np.ndarray, scale_factors: np.ndarray, K: np.ndarray) -> BundleProblem:
     """Every observation of ``point_ids`` by ``kf_ids``; poses flagged in ``fixed`` stay put."""
-    slot = {k: i for i, k in enumerate(kf_ids)}
-    pose_index, point_index, observed, sigma = [], [], [], []
-    for j, p in enumerate(point_ids):
-        for k, index in slam_map.points[p].observations.items():
-            if k in slot:
-                features = slam_map.keyframes[k].features
-                pose_index.append(slot[k])
-                point_index.append(j)
-                observed.append(features.un_px[index])
-                sigma.append(scale_factors[features.octave[index]])
+    rows, observers, indices = slam_map.observation_table(point_ids)
+    window = np.asarray(kf_ids, int)
+    order = np.argsort(window)
+    slot = np.minimum(np.searchsorted(window[order], observers), len(window) - 1)
+    inside = window[order][slot] == observers
+    rows, observers, indices = rows[inside], observers[inside], indices[inside]
+    pose_array = order[slot[inside]]
+    observed = slam_map.gather_features(observers, indices, "un_px").reshape(-1, 2)
+    octave = slam_map.gather_features(observers, indices, "octave").astype(int)
     return BundleProblem(
         np.array([slam_map.keyframes[k].T_cw for k in kf_ids]),
         slam_map.store.position[np.asarray(point_ids, int)],
-        np.array(pose_index, dtype=int),
-        np.array(point_index, dtype=int),
-        np.array(observed).reshape(-1, 2),
-        np.array(sigma),
+        pose_array,
+        rows,
+        observed,
+        scale_factors[octave],
         fixed,
         K,
     )
@@ -49,9 +48,8 @@ def apply_solution(
     for i, k in enumerate(kf_ids):
         if not problem.fixed[i] and k in slam_map.keyframes:
             slam_map.keyframes[k].set_pose(poses[i])
-    for j, p in enumerate(point_ids):
-        if p in slam_map.points:
-            slam_map.points[p].position = points[j]
+    alive = np.fromiter((p in slam_map.points for p in point_ids), bool, len(point_ids))
+    slam_map.store.position[np.asarray(point_ids, int)[alive]] = points[alive]
     for n in np.flatnonzero(~(chi2 < CHI2_2DOF)):
         point = slam_map.points.get(point_ids[problem.point_index[n]])
         if point is not None:

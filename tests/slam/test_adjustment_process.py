@@ -51,3 +51,27 @@ def test_mapping_goes_on_in_the_thread_when_the_helper_dies(problem, helper, cap
     assert np.abs(poses - truth).max() < 1e-6
     assert "helper process died" in caplog.text
     assert np.abs(helper.solve(bundle, 20)[0] - truth).max() < 1e-6  # and from then on
+
+
+def _adjust_inside_a_daemon(results) -> None:
+    rng = np.random.default_rng(5)
+    points, truth, pose_index, point_index, observed = _six_views(rng)
+    problem = BundleProblem(
+        truth.copy(), points + 0.01, pose_index, point_index, observed, np.ones(len(observed)), np.array([True, True, False, False, False, False]), K
+    )
+    adjuster = AdjustmentProcess()
+    poses, _, _ = adjuster.solve(problem, 20)
+    results.put((adjuster._pool is None, float(np.abs(poses - truth).max())))
+
+
+def test_without_a_helper_in_a_daemonic_process_mapping_adjusts_in_its_thread():
+    """The base station runs each estimator in a daemonic process, which may not start children."""
+    import multiprocessing
+
+    context = multiprocessing.get_context("spawn")
+    results = context.Queue()
+    process = context.Process(target=_adjust_inside_a_daemon, args=(results,), daemon=True)
+    process.start()
+    no_helper, error = results.get(timeout=120)
+    process.join(timeout=60)
+    assert no_helper and error < 1e-6

@@ -69,8 +69,9 @@ class AdjustmentProcess(LocalAdjustment):
         # take that from tracking just when the map is being built
         try:
             self._pool.submit(int).result(timeout=120)
-        except Exception as exc:  # noqa: BLE001 - any failure to start means: adjust in the thread
+        except Exception as exc:  # noqa: BLE001 - e.g. a daemonic process may not have children
             log.warning("no bundle adjustment helper process (%s); adjusting in the mapping thread", exc)
+            self._pool.shutdown(wait=False, cancel_futures=True)
             self._pool = None
 
     def solve(self, problem: BundleProblem, evaluations: int, interruptible: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -9,19 +9,12 @@ import numpy as np
 import pytest
 
 from evp.slam.adjustment_process import AdjustmentProcess, LocalAdjustment
-from evp.slam.bundle_adjustment import BundleProblem
-from tests.slam.test_optimisation import K, _six_views
+from tests.slam.test_optimisation import shifted_six_views
 
 
 @pytest.fixture
 def problem():
-    rng = np.random.default_rng(4)
-    points, truth, pose_index, point_index, observed = _six_views(rng)
-    perturbed = truth.copy()
-    for T in perturbed[2:]:
-        T[:3, 3] += rng.normal(0, 0.01, 3)
-    fixed = np.array([True, True, False, False, False, False])
-    return BundleProblem(perturbed, points, pose_index, point_index, observed, np.ones(len(observed)), fixed, K), truth
+    return shifted_six_views(4)
 
 
 @pytest.fixture
@@ -54,11 +47,7 @@ def test_mapping_goes_on_in_the_thread_when_the_helper_dies(problem, helper, cap
 
 
 def _adjust_inside_a_daemon(results) -> None:
-    rng = np.random.default_rng(5)
-    points, truth, pose_index, point_index, observed = _six_views(rng)
-    problem = BundleProblem(
-        truth.copy(), points + 0.01, pose_index, point_index, observed, np.ones(len(observed)), np.array([True, True, False, False, False, False]), K
-    )
+    problem, truth = shifted_six_views(5)
     adjuster = AdjustmentProcess()
     poses, _, _ = adjuster.solve(problem, 20)
     results.put((adjuster._pool is None, float(np.abs(poses - truth).max())))

@@ -89,14 +89,21 @@ class _StopAfter:
         return self.checks < 0
 
 
-def test_a_stopped_bundle_adjustment_returns_what_it_reached():
-    rng = np.random.default_rng(3)
+def shifted_six_views(seed: int) -> tuple[BundleProblem, np.ndarray]:
+    """The six views as a bundle problem whose four free poses are shifted by ~1 cm, and the
+    true poses."""
+    rng = np.random.default_rng(seed)
     points, truth, pose_index, point_index, observed = _six_views(rng)
     perturbed = truth.copy()
     for T in perturbed[2:]:
         T[:3, 3] += rng.normal(0, 0.01, 3)
     fixed = np.array([True, True, False, False, False, False])
-    problem = BundleProblem(perturbed, points, pose_index, point_index, observed, np.ones(len(observed)), fixed, K)
+    return BundleProblem(perturbed, points, pose_index, point_index, observed, np.ones(len(observed)), fixed, K), truth
+
+
+def test_a_stopped_bundle_adjustment_returns_what_it_reached():
+    problem, truth = shifted_six_views(3)
+    perturbed = problem.poses
     start_error = np.abs(perturbed - truth).max()
     poses, _, _ = bundle_adjust(problem, evaluations=20, stop=_StopAfter(0))
     assert np.allclose(poses, perturbed, rtol=0, atol=1e-12)  # stopped before the first iteration: untouched

@@ -57,16 +57,15 @@ class LocalMapper:
             self.map.update_covisibility(kf)
             self._cull_recent_points(kf)
         self._triangulate_new_points(kf)
-        if self.keyframes_waiting():  # behind the camera: the next keyframe first (ORB-SLAM)
-            return
-        self._fuse_into_neighbours(kf)
-        with self._locked():
-            self.map.update_covisibility(kf)
-            window = self._local_window(kf)
-        self._adjust(window, interruptible=True)
-        with self._locked():
-            self._cull_keyframes(kf)
-        with self._locked():
+        if not self.keyframes_waiting():  # behind the camera: the next keyframe first (ORB-SLAM)
+            self._fuse_into_neighbours(kf)
+            with self._locked():
+                self.map.update_covisibility(kf)
+                window = self._local_window(kf)
+            self._adjust(window, interruptible=True)
+            with self._locked():
+                self._cull_keyframes(kf)
+        with self._locked():  # every keyframe goes to loop detection, as in ORB-SLAM
             closed = self.loop_closer is not None and self.loop_closer.process(kf) is not None
             window = whole_map_problem(self.map, self.extractor.scale_factors, self.K) if closed else None
         self._adjust(window, interruptible=False)

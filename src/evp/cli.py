@@ -101,7 +101,7 @@ def run(
     typer.echo(
         f"{dataset.name}: tracked {metrics['tracked_frames']}/{metrics['frames']} frames "
         f"({100 * metrics['tracked_fraction']:.1f} %), first tracked frame {metrics['init_frame']}"
-        + (f", {metrics['frames_dropped']} dropped by the real-time replay (x{speed:g})" if realtime is not None else "")
+        + (f", {metrics['frames_dropped']} dropped by the real-time replay (x{speed:g})" if realtime else "")
     )
     if "rmse" in metrics:
         typer.echo(

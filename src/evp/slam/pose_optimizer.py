@@ -46,7 +46,7 @@ def optimise_pose(
                 if xi is None:
                     break
                 T = apply_increment(T, xi)
-                if np.linalg.norm(xi) < 1e-7:  # well below a pixel at any depth in map units
+                if np.linalg.norm(xi) < 1e-5:  # converged: such a step moves a point at unit depth 0.005 px at fx 500
                     break
         T[:3, :3] = nearest_rotation(T[:3, :3])  # products of rotations drift off SO(3) slowly
         inlier = reprojection_chi2(points @ T[:3, :3].T + T[:3, 3], observed, K, inv_sigma2) < CHI2_2DOF

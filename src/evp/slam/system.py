@@ -13,7 +13,9 @@ known at that moment.
 from __future__ import annotations
 
 import time
+from collections import Counter
 from dataclasses import dataclass
+from itertools import chain
 
 import cv2
 import numpy as np
@@ -334,13 +336,8 @@ class SlamSystem:
         return T_cw if inliers >= 10 else None
 
     def _local_keyframes(self, matched: np.ndarray) -> list[int]:
-        votes: dict[int, int] = {}
-        for point_id in matched[matched >= 0]:
-            point = self.map.points.get(int(point_id))
-            if point is None:
-                continue
-            for kf_id in point.observations:
-                votes[kf_id] = votes.get(kf_id, 0) + 1
+        points = self.map.points
+        votes = Counter(chain.from_iterable(points[p].observations for p in matched[matched >= 0].tolist() if p in points))
         if not votes:
             return []
         first = sorted(votes, key=lambda k: -votes[k])[:40]

@@ -15,7 +15,7 @@ take left increments (rotation vector, translation) re-linearised at every itera
 from __future__ import annotations
 
 from dataclasses import dataclass
-from threading import Event
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -28,6 +28,12 @@ from evp.geometry.two_view import CHI2_2DOF, HUBER_DELTA
 from evp.slam.projection import reprojection_chi2
 
 DENSE_POSE_LIMIT = 300  # free poses above which the reduced system is solved as a sparse matrix
+
+
+class StopFlag(Protocol):
+    """What ``bundle_adjust`` polls between iterations: a threading or a multiprocessing Event."""
+
+    def is_set(self) -> bool: ...
 
 
 @dataclass
@@ -161,7 +167,7 @@ def _apply(R: np.ndarray, t: np.ndarray, points: np.ndarray, free: np.ndarray, d
     return R, t, points + d_point
 
 
-def _solve(problem: BundleProblem, active: np.ndarray, iterations: int, robust: bool, stop: Event | None) -> BundleProblem:
+def _solve(problem: BundleProblem, active: np.ndarray, iterations: int, robust: bool, stop: StopFlag | None) -> BundleProblem:
     free = np.flatnonzero(~problem.fixed)
     slot = np.full(len(problem.poses), -1)
     slot[free] = np.arange(len(free))
@@ -192,7 +198,7 @@ def _solve(problem: BundleProblem, active: np.ndarray, iterations: int, robust: 
 
 
 def bundle_adjust(
-    problem: BundleProblem, evaluations: int = 6, outlier_rounds: int = 2, first_gate_chi2: float = 10 * CHI2_2DOF, stop: Event | None = None
+    problem: BundleProblem, evaluations: int = 6, outlier_rounds: int = 2, first_gate_chi2: float = 10 * CHI2_2DOF, stop: StopFlag | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Optimised poses (P, 4, 4) ``T_cw``, points (M, 3), and per-observation chi-square errors.
 

@@ -232,9 +232,11 @@ class Map:
         return out if out is not None else np.zeros(0)
 
     def refresh_points(self, point_ids: list[int], scale_factors: np.ndarray, descriptor: bool = True) -> None:
-        """:meth:`update_geometry` of the points; with ``descriptor``, also each one's
-        representative descriptor: of its observations' descriptors, the one with the least
-        median Hamming distance to the others (points with as many observations go together)."""
+        """Mean viewing direction and scale-invariance distance range of points, from the keyframes
+        observing them (the range from the first keyframe's view and octave); with
+        ``descriptor``, also each one's representative descriptor: of its observations'
+        descriptors, the one with the least median Hamming distance to the others (points with as
+        many observations go together)."""
         rows, kf_ids, indices = self.observation_table(point_ids)
         if len(rows) == 0:
             return
@@ -256,13 +258,6 @@ class Map:
                 distances = hamming_pairs(a, b).reshape(pairs[:3])
                 best = np.argmin(np.median(distances, axis=2), axis=1)
             self.store.descriptor[ids[group]] = stacks[np.arange(len(group)), best]
-
-    def update_geometry(self, point_ids: list[int], scale_factors: np.ndarray) -> None:
-        """Mean viewing direction and scale-invariance distance range of points, from the
-        keyframes observing them (the range from the first keyframe's view and octave)."""
-        rows, kf_ids, indices = self.observation_table(point_ids)
-        if len(rows):
-            self._update_geometry(point_ids, rows, kf_ids, indices, scale_factors)
 
     def _update_geometry(self, point_ids: list[int], rows: np.ndarray, kf_ids: np.ndarray, indices: np.ndarray, scale_factors: np.ndarray) -> None:
         ids = np.asarray(point_ids, int)

@@ -407,7 +407,7 @@ class SlamSystem:
         if not (c1 and c2):
             return False
         if not idle:
-            self.mapping.interrupt()
+            self.mapping.interrupt()  # ORB-SLAM's InterruptBA: the mapper comes free for a next frame
         # a busy mapper still takes a keyframe when tracking is weak, one at a time
         return idle or (weak and self.mapping.pending == 0)
 

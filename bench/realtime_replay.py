@@ -17,7 +17,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from run_sequences import SHARED, _circle
+from run_sequences import SHARED, render_circle
 
 from evp.config import Settings
 from evp.io.registry import open_dataset
@@ -57,7 +57,7 @@ def main() -> None:
     print(TABLE_HEADER)
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.only or [*SEQUENCES, "circle"]:
-            path = _circle(Path(tmp) / "circle") if name == "circle" else SHARED / name
+            path = render_circle(Path(tmp) / "circle") if name == "circle" else SHARED / name
             if not path.exists():
                 print(f"| {name} | missing |" + " |" * 10)
                 continue

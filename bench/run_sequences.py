@@ -33,7 +33,7 @@ SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 SEQUENCES = ["euroc_mh_01_easy_moving_360", "kitti_odom_06_f000-050", "davis_slider_depth", "aerial_nadir_odm_toledo_fc350"]
 
 
-def _circle(folder: Path) -> Path:
+def render_circle(folder: Path) -> Path:
     from evp.sim.generate import generate
     from evp.sim.scenarios import SimOptions
 
@@ -127,7 +127,7 @@ def main() -> None:
     print()
     with tempfile.TemporaryDirectory() as tmp:
         print(TABLE_HEADER)
-        print(_row("sim circle-indoor 640x380 (26 s, one lap)", _circle(Path(tmp) / "circle"), settings, args.out))
+        print(_row("sim circle-indoor 640x380 (26 s, one lap)", render_circle(Path(tmp) / "circle"), settings, args.out))
         print(_row("sim circle-indoor 640x380, VO mode", Path(tmp) / "circle", Settings(estimator="klt-vo"), args.out))
 
 

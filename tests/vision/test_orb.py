@@ -87,3 +87,41 @@ def test_pyramid_keeps_only_levels_that_hold_a_grid_cell_inside_the_borders(size
     assert usable_levels(OrbSettings(pyramid_levels=4), camera) == min(4, expected)
     extractor = OrbExtractor(settings, camera)
     assert len(extractor.scale_factors) == len(extractor.level_quota) == levels and extractor.level_quota.sum() == settings.n_features
+
+
+
+def test_levels_split_into_two_groups_of_about_equal_area():
+    extractor = _extractor()
+    fine, coarse = extractor._level_groups
+    assert fine + coarse == list(range(len(extractor.scale_factors))) and fine[0] == 0
+    area = extractor.scale_factors**-2.0
+    assert abs(area[fine].sum() - area[coarse].sum()) < area[fine[-1]]
+    camera = CameraModel(width=640, height=480, fx=500.0, fy=500.0, cx=320.0, cy=240.0)
+    assert OrbExtractor(OrbSettings(pyramid_levels=1), camera)._level_groups == [[0]]
+
+
+def test_per_level_extraction_gives_the_features_of_one_opencv_pyramid():
+    """Each level detected and described on its own (two threads) must keep what one OpenCV ORB
+    over the whole pyramid keeps: the same corners per level, positions, angles, descriptors."""
+    camera = CameraModel(width=240, height=180, fx=200.0, fy=200.0, cx=120.0, cy=90.0)
+    image = cv2.GaussianBlur(np.random.default_rng(0).integers(0, 256, (180, 240), dtype=np.uint8), (0, 0), 1.2)
+    extractor = OrbExtractor(OrbSettings(n_features=500), camera)
+    levels = len(extractor.scale_factors)
+    pyramid = cv2.ORB_create(
+        nfeatures=1500, scaleFactor=1.2, nlevels=levels, edgeThreshold=EDGE_PX, scoreType=cv2.ORB_FAST_SCORE, fastThreshold=extractor.settings.min_fast_threshold
+    )
+    keypoints = pyramid.detect(image)
+    xy = cv2.KeyPoint_convert(keypoints)
+    octave = np.array([k.octave for k in keypoints])
+    chosen = extractor._distribute(xy, octave, np.array([k.response for k in keypoints]))
+    keypoints, descriptors = pyramid.compute(image, [keypoints[i] for i in chosen])
+    ours = extractor.extract(image)
+    assert len(ours) == len(keypoints) > 400
+    theirs = cv2.KeyPoint_convert(keypoints)
+    order_ours = np.lexsort((ours.px[:, 1], ours.px[:, 0], ours.octave))
+    order_theirs = np.lexsort((theirs[:, 1], theirs[:, 0], [k.octave for k in keypoints]))
+    np.testing.assert_allclose(ours.px[order_ours], theirs[order_theirs], atol=1e-3)
+    np.testing.assert_array_equal(ours.octave[order_ours], np.array([k.octave for k in keypoints])[order_theirs])
+    np.testing.assert_allclose(ours.angle[order_ours], np.array([k.angle for k in keypoints])[order_theirs], atol=1e-3)
+    np.testing.assert_array_equal(ours.descriptors[order_ours], descriptors[order_theirs])
+    assert set(ours.octave.tolist()) == set(range(levels))

@@ -33,6 +33,24 @@ def test_pose_optimisation_is_exact_and_flags_outliers():
     assert not inlier[:20].any() and inlier[20:].all()
 
 
+
+def test_pose_optimisation_does_not_solve_the_same_round_twice(monkeypatch):
+    """A round whose inlier set and kernel equal those of a converged round would not move the
+    pose: with no outliers only the first robust and the first plain round take steps."""
+    import evp.slam.pose_optimizer as pose_optimizer
+
+    steps = []
+    step = pose_optimizer._gauss_newton_step
+    monkeypatch.setattr(pose_optimizer, "_gauss_newton_step", lambda T, P, obs, w, K_, robust: steps.append(robust) or step(T, P, obs, w, K_, robust))
+    rng = np.random.default_rng(3)
+    points = rng.uniform([-3, -2, 3], [3, 2, 8], (100, 3))
+    truth = _pose([0.1, -0.2, 0.05], [0.3, -0.1, 0.2])
+    T, inlier = optimise_pose(_pose([0.12, -0.18, 0.06], [0.35, -0.05, 0.1]), points, _project(truth, points), np.ones(100), K)
+    assert np.abs(T - truth).max() < 1e-6 and inlier.all()
+    robust_steps, plain_steps = steps.count(True), steps.count(False)
+    assert 2 <= robust_steps <= 10 and plain_steps == 1  # a plain solve from the optimum: one tiny step
+
+
 def _six_views(rng: np.random.Generator):
     """300 points seen exactly by 6 poses moving sideways: points, poses, pose and point index of
     each observation, observed pixels."""

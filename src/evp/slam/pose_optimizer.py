@@ -37,20 +37,28 @@ def optimise_pose(
     """Refined ``T_cw`` and the inlier mask; ``observed`` are undistorted pixel coordinates."""
     T = T_cw.copy()
     inlier = np.ones(len(points), bool)
+    converged_on = None  # (robust, inlier set) of the last converged solve: a repeat would not move
     for round_index in range(rounds):
         robust = round_index < rounds - 2
-        if inlier.sum() >= 3:
-            P, obs, w_info = points[inlier], observed[inlier], inv_sigma2[inlier]
-            for _ in range(iterations):
-                xi = _gauss_newton_step(T, P, obs, w_info, K, robust)
-                if xi is None:
-                    break
-                T = apply_increment(T, xi)
-                if np.linalg.norm(xi) < 1e-5:  # converged: such a step moves a point at unit depth 0.005 px at fx 500
-                    break
+        repeat = converged_on is not None and converged_on[0] == robust and np.array_equal(converged_on[1], inlier)
+        if inlier.sum() >= 3 and not repeat:
+            T, converged = _gauss_newton(T, points[inlier], observed[inlier], inv_sigma2[inlier], K, robust, iterations)
+            converged_on = (robust, inlier) if converged else None
         T[:3, :3] = nearest_rotation(T[:3, :3])  # products of rotations drift off SO(3) slowly
         inlier = reprojection_chi2(points @ T[:3, :3].T + T[:3, 3], observed, K, inv_sigma2) < CHI2_2DOF
     return T, inlier
+
+
+def _gauss_newton(T: np.ndarray, P: np.ndarray, obs: np.ndarray, w_info: np.ndarray, K: np.ndarray, robust: bool, iterations: int) -> tuple[np.ndarray, bool]:
+    """Up to ``iterations`` Gauss-Newton steps from ``T``; the pose and whether it converged."""
+    for _ in range(iterations):
+        xi = _gauss_newton_step(T, P, obs, w_info, K, robust)
+        if xi is None:
+            return T, False
+        T = apply_increment(T, xi)
+        if np.linalg.norm(xi) < 1e-5:  # such a step moves a point at unit depth 0.005 px at fx 500
+            return T, True
+    return T, False
 
 
 def _gauss_newton_step(T: np.ndarray, P: np.ndarray, obs: np.ndarray, w_info: np.ndarray, K: np.ndarray, robust: bool) -> np.ndarray | None:

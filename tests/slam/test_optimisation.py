@@ -33,7 +33,6 @@ def test_pose_optimisation_is_exact_and_flags_outliers():
     assert not inlier[:20].any() and inlier[20:].all()
 
 
-
 def test_pose_optimisation_does_not_solve_the_same_round_twice(monkeypatch):
     """A round whose inlier set and kernel equal those of a converged round would not move the
     pose: with no outliers only the first robust and the first plain round take steps."""

@@ -89,7 +89,6 @@ def test_pyramid_keeps_only_levels_that_hold_a_grid_cell_inside_the_borders(size
     assert len(extractor.scale_factors) == len(extractor.level_quota) == levels and extractor.level_quota.sum() == settings.n_features
 
 
-
 def test_levels_split_into_two_groups_of_about_equal_area():
     extractor = _extractor()
     fine, coarse = extractor._level_groups
@@ -108,7 +107,12 @@ def test_per_level_extraction_gives_the_features_of_one_opencv_pyramid():
     extractor = OrbExtractor(OrbSettings(n_features=500), camera)
     levels = len(extractor.scale_factors)
     pyramid = cv2.ORB_create(
-        nfeatures=1500, scaleFactor=1.2, nlevels=levels, edgeThreshold=EDGE_PX, scoreType=cv2.ORB_FAST_SCORE, fastThreshold=extractor.settings.min_fast_threshold
+        nfeatures=1500,
+        scaleFactor=1.2,
+        nlevels=levels,
+        edgeThreshold=EDGE_PX,
+        scoreType=cv2.ORB_FAST_SCORE,
+        fastThreshold=extractor.settings.min_fast_threshold,
     )
     keypoints = pyramid.detect(image)
     xy = cv2.KeyPoint_convert(keypoints)

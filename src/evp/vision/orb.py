@@ -91,7 +91,14 @@ class OrbExtractor:
         retained = _per_level(3 * settings.n_features, settings.scale_factor, levels)
         self._level_detectors = [
             cv2.ORB_create(
-                nfeatures=int(n), nlevels=1, edgeThreshold=EDGE_PX, firstLevel=0, WTA_K=2, scoreType=cv2.ORB_FAST_SCORE, patchSize=31, fastThreshold=settings.min_fast_threshold
+                nfeatures=int(n),
+                nlevels=1,
+                edgeThreshold=EDGE_PX,
+                firstLevel=0,
+                WTA_K=2,
+                scoreType=cv2.ORB_FAST_SCORE,
+                patchSize=31,
+                fastThreshold=settings.min_fast_threshold,
             )
             for n in retained
         ]

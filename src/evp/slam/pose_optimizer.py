@@ -44,8 +44,8 @@ def optimise_pose(
         if inlier.sum() >= 3 and not repeat:
             T, converged = _gauss_newton(T, points[inlier], observed[inlier], inv_sigma2[inlier], K, robust, iterations)
             converged_on = (robust, inlier) if converged else None
-        T[:3, :3] = nearest_rotation(T[:3, :3])  # products of rotations drift off SO(3) slowly
         inlier = reprojection_chi2(points @ T[:3, :3].T + T[:3, 3], observed, K, inv_sigma2) < CHI2_2DOF
+    T[:3, :3] = nearest_rotation(T[:3, :3])  # products of rotations drift off SO(3), slowly
     return T, inlier
 
 
@@ -65,29 +65,28 @@ def _gauss_newton_step(T: np.ndarray, P: np.ndarray, obs: np.ndarray, w_info: np
     """The increment ``xi`` minimising the (Huber-weighted) reprojection error to first order."""
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     pc = P @ T[:3, :3].T + T[:3, 3]
-    x, y = pc[:, 0], pc[:, 1]
     iz = 1.0 / np.maximum(pc[:, 2], 1e-6)
-    xz, yz = x * iz, y * iz
-    r = np.stack([fx * xz + cx - obs[:, 0], fy * yz + cy - obs[:, 1]], axis=1)
-    # d(residual)/d(point in camera), then d(point)/d(xi) = [-[pc]x | I]; rows 2i and 2i+1
-    J = np.zeros((len(P), 2, 6))
-    J[:, 0, 0] = -fx * xz * yz
-    J[:, 0, 1] = fx * (1 + xz * xz)
-    J[:, 0, 2] = -fx * yz
-    J[:, 0, 3] = fx * iz
-    J[:, 0, 5] = -fx * xz * iz
-    J[:, 1, 0] = -fy * (1 + yz * yz)
-    J[:, 1, 1] = fy * xz * yz
-    J[:, 1, 2] = fy * xz
-    J[:, 1, 4] = fy * iz
-    J[:, 1, 5] = -fy * yz * iz
+    xz, yz = pc[:, 0] * iz, pc[:, 1] * iz
+    r = np.empty((2, len(P)))  # u residuals, then v residuals
+    r[0] = fx * xz + cx - obs[:, 0]
+    r[1] = fy * yz + cy - obs[:, 1]
+    # d(residual)/d(point in camera), then d(point)/d(xi) = [-[pc]x | I]; u rows, then v rows
+    J = np.zeros((2, len(P), 6))
+    J[0, :, 0] = -fx * xz * yz
+    J[0, :, 1] = fx * (1 + xz * xz)
+    J[0, :, 2] = -fx * yz
+    J[0, :, 3] = fx * iz
+    J[0, :, 5] = -fx * xz * iz
+    J[1, :, 0] = -fy * (1 + yz * yz)
+    J[1, :, 1] = fy * xz * yz
+    J[1, :, 2] = fy * xz
+    J[1, :, 4] = fy * iz
+    J[1, :, 5] = -fy * yz * iz
     weight = w_info
     if robust:
-        e = np.sqrt(np.sum(r * r, axis=1) * w_info)
+        e = np.sqrt((r[0] * r[0] + r[1] * r[1]) * w_info)
         weight = w_info * np.where(e <= HUBER_DELTA, 1.0, HUBER_DELTA / np.maximum(e, 1e-12))
-    J2 = J.reshape(-1, 6)
-    WJ = J2 * np.repeat(weight, 2)[:, None]
-    try:
-        return -np.linalg.solve(WJ.T @ J2 + 1e-9 * np.eye(6), WJ.T @ r.ravel())
-    except np.linalg.LinAlgError:
-        return None
+    WJ = (J * weight[:, None]).reshape(-1, 6)
+    H = WJ.T @ J.reshape(-1, 6) + 1e-9 * np.eye(6)
+    solved, xi = cv2.solve(H, -(WJ.T @ r.reshape(-1, 1)), flags=cv2.DECOMP_CHOLESKY)  # a 6x6 system: OpenCV's call costs least
+    return xi.ravel() if solved else None

@@ -4,7 +4,7 @@ table with the same window, scale and ratio rules would pick."""
 import numpy as np
 import pytest
 
-from evp.vision.matching import NO_MATCH, best_unique, hamming_matrix, hamming_pairs, match_in_window
+from evp.vision.matching import NO_MATCH, best_unique, hamming_matrix, hamming_pairs, match_in_window, pairs_within
 
 
 def _dense_window_match(desc_a, xy_a, desc_b, xy_b, radius, max_distance, ratio, octave_a=None, octave_b=None, window=1):
@@ -51,3 +51,17 @@ def test_pairwise_hamming_equals_the_table():
     rng = np.random.default_rng(2)
     a, b = rng.integers(0, 256, (30, 32), dtype=np.uint8), rng.integers(0, 256, (30, 32), dtype=np.uint8)
     assert np.array_equal(hamming_pairs(a, b), np.diag(hamming_matrix(a, b)))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_grid_search_finds_exactly_the_pairs_within_each_radius(seed):
+    rng = np.random.default_rng(seed)
+    xy_a = rng.uniform(-50, 700, (400, 2))
+    xy_b = np.vstack([rng.uniform(-50, 700, (600, 2)), xy_a[:50] + rng.normal(0, 3, (50, 2))])
+    radius = rng.choice([0.0, 2.5, 15.0, 54.0, 300.0], len(xy_a))  # level-scaled windows, and extremes
+    rows, cols = pairs_within(xy_a, radius, xy_b)
+    distance = np.linalg.norm(xy_a[:, None] - xy_b[None], axis=2)
+    expected = np.argwhere(distance <= radius[:, None])
+    got = np.c_[rows, cols]
+    assert np.all(np.diff(rows) >= 0)
+    np.testing.assert_array_equal(got[np.lexsort((cols, rows))], expected)

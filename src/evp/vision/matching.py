@@ -4,7 +4,6 @@ projection (candidates within a radius and a scale window of where a map point s
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 TH_HIGH = 100  # ORB-SLAM's Hamming thresholds
 TH_LOW = 50
@@ -95,6 +94,35 @@ def best_unique_pairs(rows: np.ndarray, cols: np.ndarray, distances: np.ndarray,
     return rows[keep], cols[keep]
 
 
+def pairs_within(xy_a: np.ndarray, radius: np.ndarray, xy_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """All (i, j) with ``|xy_a[i] - xy_b[j]| <= radius[i]``, i ascending (``xy_a`` finite).
+
+    ``b`` is bucketed in a grid of square cells sorted row by row, so the cells within a point's
+    own radius are, row by row, one contiguous run found by binary search: the candidates follow
+    each point's radius (tracking's grow with the pyramid level, 15 to 54 px), where one k-d
+    tree query radius for all would compare most level-0 points with 10 times too many keypoints."""
+    cell = max(float(np.min(radius)), float(np.max(radius)) / 8, 4.0)  # at most 17 grid rows per point
+    reach = np.ceil(radius / cell).astype(np.int64)  # cells each side
+    origin = np.minimum(xy_a.min(axis=0), xy_b.min(axis=0)) - cell * (reach.max() + 1)
+    columns = int((max(xy_a[:, 0].max(), xy_b[:, 0].max()) - origin[0]) // cell) + reach.max() + 2
+    cell_b = ((xy_b - origin) // cell).astype(np.int64)
+    key_b = cell_b[:, 1] * columns + cell_b[:, 0]
+    order_b = np.argsort(key_b, kind="stable")
+    key_b = key_b[order_b]
+    cell_a = ((xy_a - origin) // cell).astype(np.int64)
+    offsets = np.arange(-reach.max(), reach.max() + 1)
+    point, row_offset = np.nonzero(np.abs(offsets)[None, :] <= reach[:, None])  # (point, grid row) runs
+    row = cell_a[point, 1] + offsets[row_offset]
+    start = np.searchsorted(key_b, row * columns + cell_a[point, 0] - reach[point], "left")
+    stop = np.searchsorted(key_b, row * columns + cell_a[point, 0] + reach[point], "right")
+    counts = stop - start
+    rows = np.repeat(point, counts)
+    cols = order_b[np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts - start, counts)]
+    d = xy_a[rows] - xy_b[cols]
+    near = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] <= radius[rows] * radius[rows]
+    return rows[near], cols[near]
+
+
 def match_in_window(
     desc_a: np.ndarray,
     xy_a: np.ndarray,
@@ -110,17 +138,15 @@ def match_in_window(
     """Match rows of ``a`` to rows of ``b`` lying within ``radius`` pixels of ``xy_a`` (and, when
     octaves are given, within ``octave_window`` pyramid levels).
 
-    Candidates come from a k-d tree, so only pairs inside the window have their descriptors
-    compared (tracking projects thousands of map points against a thousand keypoints)."""
+    Only pairs inside the window have their descriptors compared (tracking projects thousands
+    of map points against a thousand keypoints)."""
     radius = np.broadcast_to(np.asarray(radius, float), (len(xy_a),))
     finite = np.flatnonzero(np.isfinite(xy_a).all(axis=1) & np.isfinite(radius))
     if len(finite) == 0 or len(xy_b) == 0:
         return np.zeros(0, int), np.zeros(0, int)
-    pairs = cKDTree(xy_a[finite]).sparse_distance_matrix(cKDTree(xy_b), float(radius[finite].max()) * (1 + 1e-9) + 1e-9, output_type="ndarray")
-    rows, cols = finite[pairs["i"]], pairs["j"].astype(int)
-    d = xy_a[rows] - xy_b[cols]
-    near = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] <= radius[rows] * radius[rows]
+    rows, cols = pairs_within(xy_a[finite], radius[finite], xy_b)
+    rows = finite[rows]
     if octave_a is not None and octave_b is not None:
-        near &= np.abs(octave_a[rows] - octave_b[cols]) <= octave_window
-    rows, cols = rows[near], cols[near]
+        same_scale = np.abs(octave_a[rows] - octave_b[cols]) <= octave_window
+        rows, cols = rows[same_scale], cols[same_scale]
     return best_unique_pairs(rows, cols, hamming_pairs(desc_a[rows], desc_b[cols]), max_distance, ratio)

@@ -356,11 +356,19 @@ class SlamSystem:
                 break
         return [k for k in local if k in self.map.keyframes]
 
+    def _unmatched_local_points(self, local: list[int], matched: np.ndarray) -> np.ndarray:
+        """Ids, ascending, of the points the local keyframes see that the frame has not matched
+        (a mask over the point store: cheaper than sorting the keyframes' tens of thousands of ids)."""
+        if not local:
+            return np.zeros(0, int)
+        seen = np.concatenate([self.map.keyframes[k].point_ids for k in local])
+        wanted = np.zeros(len(self.map.store.position), bool)
+        wanted[seen[seen >= 0]] = True  # keyframes' point ids always name live points (the Map keeps them in step)
+        wanted[matched[matched >= 0]] = False
+        return np.flatnonzero(wanted)
+
     def _track_local_map(self, features: Features, matched: np.ndarray, T_cw: np.ndarray) -> tuple[np.ndarray, int]:
-        local = self._local_keyframes(matched)
-        # keyframes' point ids always name live points (the Map keeps them in step)
-        ids = np.unique(np.concatenate([self.map.keyframes[k].point_ids for k in local])) if local else np.zeros(0, int)
-        ids = ids[(ids >= 0) & ~np.isin(ids, matched[matched >= 0])]
+        ids = self._unmatched_local_points(self._local_keyframes(matched), matched)
         projection = project_points(self.map, ids, T_cw, self.extractor, self.K, self.bounds)
         if projection is not None:
             candidates = ids[projection.rows]

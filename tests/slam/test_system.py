@@ -101,18 +101,24 @@ def test_tracks_a_stream_that_drops_frames(circle):
 
 def test_closes_the_loop_when_the_circle_comes_round(tmp_path):
     """A faster lap (1 m/s) brings the camera back over its start within 11 s: the loop is found
-    against the first keyframes, and the drift it reveals is spread (0.0076 m with loop closing,
-    0.0093 m without, measured)."""
+    against the first keyframes, and the drift it reveals is spread. One clip's ATE is one sample
+    of a spread (with 950, 1000 and 1050 features: 0.0071-0.0102 m with loop closing, 0.0113-0.0174 m
+    without, measured), so the bound leaves room for it and closing must beat not closing."""
     options = SimOptions(
         duration_s=11.0, fps=15.0, seed=4, speed_m_s=1.0, noise_sigma=0.0, exposure_s=0.0, gain_variation=0.0, distortion=False, image_format="png"
     )
     generate("circle-indoor", options, tmp_path, workers=1)
     dataset = open_dataset(tmp_path)
-    slam = _system(dataset)
-    for frame in dataset.frames():
-        slam.feed(frame)
-    slam.finish()
-    closures = slam.loop_closures
-    assert len(closures) == 1
-    assert closures[0].loop_keyframe < 10 and closures[0].matches >= 100
-    assert _ate(dataset, slam) < 0.0085
+    ate = {}
+    for loop_closing in (True, False):
+        slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline", loop_closing=loop_closing))
+        for frame in dataset.frames():
+            slam.feed(frame)
+        slam.finish()
+        ate[loop_closing] = _ate(dataset, slam)
+        if loop_closing:
+            closures = slam.loop_closures
+            assert len(closures) == 1
+            assert closures[0].loop_keyframe < 10 and closures[0].matches >= 100
+    assert ate[True] < 0.012
+    assert ate[True] < 0.85 * ate[False]

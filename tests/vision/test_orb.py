@@ -129,3 +129,6 @@ def test_per_level_extraction_gives_the_features_of_one_opencv_pyramid():
     np.testing.assert_allclose(ours.angle[order_ours], np.array([k.angle for k in keypoints])[order_theirs], atol=1e-3)
     np.testing.assert_array_equal(ours.descriptors[order_ours], descriptors[order_theirs])
     assert set(ours.octave.tolist()) == set(range(levels))
+    one_thread = OrbExtractor(OrbSettings(n_features=500), camera, parallel=False).extract(image)
+    np.testing.assert_array_equal(one_thread.px, ours.px)
+    np.testing.assert_array_equal(one_thread.descriptors, ours.descriptors)

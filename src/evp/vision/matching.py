@@ -100,7 +100,7 @@ def pairs_within(xy_a: np.ndarray, radius: np.ndarray, xy_b: np.ndarray) -> tupl
     ``b`` is bucketed in a grid of square cells sorted row by row, so the cells within a point's
     own radius are, row by row, one contiguous run found by binary search: the candidates follow
     each point's radius (tracking's grow with the pyramid level, 15 to 54 px), where one k-d
-    tree query radius for all would compare most level-0 points with 10 times too many keypoints."""
+    tree query radius for all would compare level-0 points with up to 13 times too many keypoints."""
     cell = max(float(np.min(radius)), float(np.max(radius)) / 8, 4.0)  # at most 17 grid rows per point
     reach = np.ceil(radius / cell).astype(np.int64)  # cells each side
     origin = np.minimum(xy_a.min(axis=0), xy_b.min(axis=0)) - cell * (reach.max() + 1)

@@ -77,7 +77,10 @@ def _split_levels(scale_factors: np.ndarray) -> list[list[int]]:
 
 
 class OrbExtractor:
-    def __init__(self, settings: OrbSettings, camera: CameraModel):
+    """``parallel``: the coarse levels in a second thread (the default); off, every level in the
+    caller's thread (same features)."""
+
+    def __init__(self, settings: OrbSettings, camera: CameraModel, parallel: bool = True):
         self.settings = settings
         self.camera = camera
         levels = usable_levels(settings, camera)
@@ -102,7 +105,7 @@ class OrbExtractor:
             )
             for n in retained
         ]
-        self._level_groups = _split_levels(self.scale_factors)
+        self._level_groups = _split_levels(self.scale_factors) if parallel else [list(range(levels))]
         self._helper = ThreadPoolExecutor(1, thread_name_prefix="orb") if len(self._level_groups) > 1 else None
 
     def extract(self, grey: np.ndarray) -> Features:
@@ -118,7 +121,7 @@ class OrbExtractor:
     def _extract_levels(self, levels: list[int], grey: np.ndarray) -> list[tuple[np.ndarray, ...]]:
         """(px at level 0, octave, angle, descriptors) of the kept features of each level.
 
-        Positions are level pixels times 1.2^level, OpenCV's (and ORB-SLAM's) convention."""
+        Positions are level pixels times scale_factor^level, OpenCV's (and ORB-SLAM's) convention."""
         parts = []
         height, width = grey.shape
         image = grey

@@ -71,14 +71,16 @@ def test_speed_must_be_positive():
 
 def test_realtime_run_of_the_sample_reports_dropped_frames(tmp_path):
     out = tmp_path / "run"
-    command = [sys.executable, "-m", "evp.cli", "run", str(SAMPLE), "--out", str(out), "--realtime", "--speed", "0.5"]
+    command = [sys.executable, "-m", "evp.cli", "run", str(SAMPLE), "--out", str(out), "--realtime", "--speed", "0.25"]
     proc = subprocess.run(command, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
-    assert "dropped by the real-time replay (x0.5)" in proc.stdout
+    assert "dropped by the real-time replay (x0.25)" in proc.stdout
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["frames_fed"] + metrics["frames_dropped"] == metrics["frames"] == 87
-    # the sample's 240x180 frames take a few tens of ms: at half speed (~60 ms a frame) nearly
-    # all are tracked; a replay that fed nothing or lost the map would fail here
+    # the sample's 240x180 frames take a few tens of ms, a keyframe's inline mapping ~150 ms: at a
+    # quarter speed (~155 ms a frame) most are fed even while the rest of the suite loads both
+    # cores (at half speed, under that load, one CI run dropped enough to drift 9 cm); a replay
+    # that fed nothing or lost the map would fail here
     assert metrics["tracked_fraction"] > 0.5 and metrics["rmse"] < 0.05
 
 

@@ -80,6 +80,11 @@ class SlamSettings(_Section):
     local_map_search_radius_px: float = Field(4.0, gt=0, description="window for local map points (times the level scale)")
     min_tracked_inliers: int = Field(30, ge=6, description="fewer inliers after local-map tracking: LOST")
     min_relocalised_inliers: int = Field(50, ge=10)
+    restart_max_keyframes: int = Field(
+        5,
+        ge=2,
+        description="a map of at most this many keyframes that tracking loses was a failed start: discarded and initialised again (ORB-SLAM); a larger map is kept and relocalised against",
+    )
     keyframe_max_frames: int = Field(30, ge=1, description="a keyframe at least this often (frames) when tracking is weak")
     keyframe_ref_ratio: float = Field(0.9, gt=0, lt=1, description="a keyframe when tracked points fall below this share of the reference keyframe's")
     covisible_keyframes: int = Field(10, ge=2, description="neighbours used to triangulate new points")

@@ -51,7 +51,7 @@ class LocalMapper:
     def process(self, item: NewKeyFrame) -> None:
         kf = item.keyframe
         with self._locked():
-            if kf.id not in self.map.keyframes:
+            if not self._in_map(kf):
                 return
             self._register_observations(kf, item.matched_points)
             self.map.update_covisibility(kf)
@@ -60,15 +60,25 @@ class LocalMapper:
         if not self.keyframes_waiting():  # behind the camera: the next keyframe first (ORB-SLAM)
             self._fuse_into_neighbours(kf)
             with self._locked():
+                if not self._in_map(kf):
+                    return
                 self.map.update_covisibility(kf)
                 window = self._local_window(kf)
             self._adjust(window, interruptible=True)
             with self._locked():
-                self._cull_keyframes(kf)
+                if self._in_map(kf):
+                    self._cull_keyframes(kf)
         with self._locked():  # every keyframe goes to loop detection, as in ORB-SLAM
+            if not self._in_map(kf):
+                return
             closed = self.loop_closer is not None and self.loop_closer.process(kf) is not None
             window = whole_map_problem(self.map, self.extractor.scale_factors, self.K) if closed else None
         self._adjust(window, interruptible=False)
+
+    def _in_map(self, kf: KeyFrame) -> bool:
+        """Still in the map: tracking discards a failed start's map while its keyframes may be
+        queued or half mapped (checked under the lock, at every step)."""
+        return kf.id in self.map.keyframes
 
     @contextmanager
     def _locked(self) -> Iterator[None]:
@@ -122,7 +132,7 @@ class LocalMapper:
         for neighbour_id in kf.best_covisible(s.covisible_keyframes):
             with self._locked():
                 nb = self.map.keyframes.get(neighbour_id)
-                if nb is not None:
+                if nb is not None and self._in_map(kf):
                     self._triangulate_with(kf, nb, sigma2, scale, fx)
 
     def _triangulate_with(self, kf: KeyFrame, nb: KeyFrame, sigma2: np.ndarray, scale: float, fx: float) -> None:
@@ -172,7 +182,7 @@ class LocalMapper:
         for neighbour_id in kf.best_covisible(self.settings.covisible_keyframes):
             with self._locked():
                 nb = self.map.keyframes.get(neighbour_id)
-                if nb is not None:
+                if nb is not None and self._in_map(kf):
                     fuse_points(self.map, self.extractor, self.K, nb, ids)
 
     def _local_window(self, kf: KeyFrame) -> tuple[BundleProblem, list[int], list[int]] | None:
@@ -186,8 +196,9 @@ class LocalMapper:
         fixed_ids = sorted({o for p in point_ids for o in self.map.points[p].observations if o not in local and o in self.map.keyframes})
         kf_ids = local_ids + fixed_ids
         fixed = np.array([k not in local for k in kf_ids])
-        if 0 in local:
-            fixed[kf_ids.index(0)] = True  # the first keyframe anchors the map
+        origin = self.map.origin_id
+        if origin in local:
+            fixed[kf_ids.index(origin)] = True  # the first keyframe anchors the map
         # a monocular window needs two fixed poses: one leaves the scale free to drift
         for k in sorted(local_ids):
             if fixed.sum() >= 2 or k == kf.id:
@@ -199,9 +210,10 @@ class LocalMapper:
         """Drop neighbours whose points are nearly all seen by 3 other keyframes at the same or a
         finer scale: they add computation, not information."""
         octaves = {k: other.features.octave for k, other in self.map.keyframes.items()}
+        origin = self.map.origin_id
         for neighbour_id in kf.best_covisible(self.settings.local_ba_keyframes):
             nb = self.map.keyframes.get(neighbour_id)
-            if nb is None or nb.id == 0 or nb.id == kf.id:
+            if nb is None or nb.id == origin or nb.id == kf.id:
                 continue
             total, redundant = 0, 0
             for index in np.flatnonzero(nb.point_ids >= 0).tolist():

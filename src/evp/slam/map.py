@@ -304,6 +304,12 @@ class Map:
         rows = np.flatnonzero(point_ids >= 0)
         return rows[np.fromiter((int(i) in self.points for i in point_ids[rows]), bool, len(rows))]
 
+    @property
+    def origin_id(self) -> int | None:
+        """The map's first keyframe: it anchors the map (never culled, fixed in adjustments), so
+        it keeps the lowest id while the map lives."""
+        return min(self.keyframes, default=None)
+
     def median_depth(self, kf: KeyFrame) -> float:
         ids = kf.point_ids[kf.point_ids >= 0]
         positions = np.array([self.points[int(i)].position for i in ids if int(i) in self.points]).reshape(-1, 3)

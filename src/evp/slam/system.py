@@ -80,7 +80,7 @@ class SlamSystem:
         self.extraction_ms: list[float] = []
         self.tracking_ms: list[float] = []  # per frame, without mapping
         self.records: list[_FrameRecord] = []
-        self.reset_counter = 0  # bumped on relocalisation (a discontinuity for consumers)
+        self.reset_counter = 0  # bumped on relocalisation and restart (a discontinuity for consumers)
         self._init_reference: _InitReference | None = None
         self._last: _TrackedFrame | None = None
         self._velocity: np.ndarray | None = None  # motion between the last two tracked frames
@@ -220,6 +220,17 @@ class SlamSystem:
             self.map.remove_keyframe(kf_id)
         self.map.points.clear()
 
+    def _restart(self) -> None:
+        """Tracking lost a map of a few keyframes: the start was wrong (too few points, or a
+        climb along the optical axis with too little parallax), and relocalising against it
+        rarely succeeds. ORB-SLAM resets such a map; so does this, and initialises again. The
+        frames tracked in it leave the trajectory (they had that map's scale and frame)."""
+        self._discard_map()
+        self.state = TrackingState.NOT_INITIALIZED
+        self._init_reference = None
+        self._last = None
+        self.reset_counter += 1
+
     # --- tracking -------------------------------------------------------------------------
 
     def _track(self, timestamp: float, grey: np.ndarray, features: Features) -> np.ndarray | None:
@@ -241,6 +252,8 @@ class SlamSystem:
             if T_cw is None:
                 self.state = TrackingState.LOST
                 self._velocity = None
+                if len(self.map.keyframes) <= self.settings.restart_max_keyframes:
+                    self._restart()
                 return None
             self._velocity = T_cw @ se3_inverse(self._last.T_cw)
             self._velocity_dt = timestamp - self._last.timestamp

@@ -4,7 +4,7 @@ table with the same window, scale and ratio rules would pick."""
 import numpy as np
 import pytest
 
-from evp.vision.matching import NO_MATCH, best_unique, hamming_matrix, hamming_pairs, match_in_window, pairs_within
+from evp.vision.matching import NO_MATCH, best_unique, best_unique_pairs, hamming_matrix, hamming_pairs, match_in_window, pairs_within
 
 
 def _dense_window_match(desc_a, xy_a, desc_b, xy_b, radius, max_distance, ratio, octave_a=None, octave_b=None, window=1):
@@ -39,6 +39,20 @@ def test_window_matching_equals_the_dense_table(seed):
         assert np.array_equal(got[0], expected[0]) and np.array_equal(got[1], expected[1])
 
 
+@pytest.mark.parametrize("seed", range(10))
+def test_sparse_best_unique_equals_the_dense_table_in_any_candidate_order(seed):
+    """Local mapping's epipolar candidates come grouped by row in no set order within a row."""
+    rng = np.random.default_rng(seed)
+    desc_a, _, desc_b, _ = _scene(rng, 120, 150)
+    rows, cols = np.nonzero(rng.random((120, 150)) < 0.1)
+    table = np.full((120, 150), NO_MATCH, np.float32)
+    table[rows, cols] = hamming_matrix(desc_a, desc_b)[rows, cols]
+    expected = best_unique(table, 100, 0.9)
+    for order in (np.arange(len(rows)), rng.permutation(len(rows)), np.lexsort((rng.random(len(rows)), rows))):
+        got = best_unique_pairs(rows[order], cols[order], hamming_pairs(desc_a, desc_b, rows[order], cols[order]), 100, 0.9)
+        assert np.array_equal(got[0], expected[0]) and np.array_equal(got[1], expected[1])
+
+
 def test_points_behind_the_camera_never_match():
     rng = np.random.default_rng(1)
     desc_a, xy_a, desc_b, xy_b = _scene(rng, 50, 50)
@@ -50,7 +64,9 @@ def test_points_behind_the_camera_never_match():
 def test_pairwise_hamming_equals_the_table():
     rng = np.random.default_rng(2)
     a, b = rng.integers(0, 256, (30, 32), dtype=np.uint8), rng.integers(0, 256, (30, 32), dtype=np.uint8)
-    assert np.array_equal(hamming_pairs(a, b), np.diag(hamming_matrix(a, b)))
+    rows, cols = rng.integers(0, 30, 500), rng.integers(0, 30, 500)
+    assert np.array_equal(hamming_pairs(a, b, rows, cols), hamming_matrix(a, b)[rows, cols])
+    assert hamming_pairs(a, ~a, np.arange(30), np.arange(30)).tolist() == [256.0] * 30  # no overflow
 
 
 @pytest.mark.parametrize("seed", range(4))

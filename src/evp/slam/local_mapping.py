@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from evp.config import SlamSettings
-from evp.geometry.transforms import se3_inverse, skew
+from evp.geometry.epipolar_band import epipolar_pairs
 from evp.geometry.two_view import CHI2_1DOF, check_points, triangulate
 from evp.slam.adjustment_process import LocalAdjustment
 from evp.slam.bundle_adjustment import BundleProblem
@@ -146,10 +146,8 @@ class LocalMapper:
         if len(free_a) == 0 or len(free_b) == 0:
             return
         fa, fb = kf.features, nb.features
-        rows, cols = _epipolar_candidates(
-            _essential(kf.T_cw, nb.T_cw), fa.normalised[free_a], fb.normalised[free_b], np.sqrt(CHI2_1DOF * sigma2[fb.octave[free_b]]) / fx
-        )
-        distances = hamming_pairs(fa.descriptors[free_a[rows]], fb.descriptors[free_b[cols]])
+        rows, cols = epipolar_pairs(kf.T_cw, nb.T_cw, fa.normalised[free_a], fb.normalised[free_b], np.sqrt(CHI2_1DOF * sigma2[fb.octave[free_b]]) / fx)
+        distances = hamming_pairs(fa.descriptors, fb.descriptors, free_a[rows], free_b[cols])
         rows, cols = best_unique_pairs(rows, cols, distances, TH_LOW, 0.6)
         if len(rows) == 0:
             return
@@ -236,25 +234,6 @@ class LocalMapper:
                 if seen == 3:
                     return True
         return False
-
-
-def _epipolar_candidates(E: np.ndarray, xa: np.ndarray, xb: np.ndarray, tolerance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pairs (row of ``xa``, row of ``xb``) of normalised points where b lies within
-    ``tolerance[b]`` (normalised units) of a's epipolar line.
-
-    Found before any descriptor is compared: the band keeps a few percent of all pairs, so only
-    those are matched (float32: one matrix product over all pairs)."""
-    lines = (np.c_[xa, np.ones(len(xa))] @ E.T).astype(np.float32)
-    lines /= np.maximum(np.hypot(lines[:, 0], lines[:, 1]), 1e-12)[:, None]
-    residual = lines @ np.c_[xb, np.ones(len(xb))].astype(np.float32).T
-    np.abs(residual, out=residual)
-    return np.nonzero(residual <= tolerance.astype(np.float32)[None, :])
-
-
-def _essential(T1_cw: np.ndarray, T2_cw: np.ndarray) -> np.ndarray:
-    """Essential matrix mapping normalised points of view 1 to epipolar lines in view 2."""
-    T21 = T2_cw @ se3_inverse(T1_cw)
-    return skew(T21[:3, 3]) @ T21[:3, :3]
 
 
 class MappingWorker:

@@ -249,15 +249,15 @@ class Map:
         ids = np.asarray(point_ids, int)
         for count in np.unique(counts[counts > 0]).tolist():
             group = np.flatnonzero(counts == count)
-            stacks = descriptors[starts[group][:, None] + np.arange(count)]  # (points, count, 32)
+            stacks = starts[group][:, None] + np.arange(count)  # (points, count) rows of descriptors
             best = np.zeros(len(group), int)
             if count > 2:
-                pairs = (len(group), count, count, 32)
-                a = np.broadcast_to(stacks[:, :, None, :], pairs).reshape(-1, 32)
-                b = np.broadcast_to(stacks[:, None, :, :], pairs).reshape(-1, 32)
-                distances = hamming_pairs(a, b).reshape(pairs[:3])
+                pairs = (len(group), count, count)
+                a = np.broadcast_to(stacks[:, :, None], pairs).ravel()
+                b = np.broadcast_to(stacks[:, None, :], pairs).ravel()
+                distances = hamming_pairs(descriptors, descriptors, a, b).reshape(pairs)
                 best = np.argmin(np.median(distances, axis=2), axis=1)
-            self.store.descriptor[ids[group]] = stacks[np.arange(len(group)), best]
+            self.store.descriptor[ids[group]] = descriptors[stacks[np.arange(len(group)), best]]
 
     def _update_geometry(self, point_ids: list[int], rows: np.ndarray, kf_ids: np.ndarray, indices: np.ndarray, scale_factors: np.ndarray) -> None:
         ids = np.asarray(point_ids, int)

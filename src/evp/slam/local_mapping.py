@@ -207,33 +207,19 @@ class LocalMapper:
     def _cull_keyframes(self, kf: KeyFrame) -> None:
         """Drop neighbours whose points are nearly all seen by 3 other keyframes at the same or a
         finer scale: they add computation, not information."""
-        octaves = {k: other.features.octave for k, other in self.map.keyframes.items()}
         origin = self.map.origin_id
         for neighbour_id in kf.best_covisible(self.settings.local_ba_keyframes):
             nb = self.map.keyframes.get(neighbour_id)
             if nb is None or nb.id == origin or nb.id == kf.id:
                 continue
-            total, redundant = 0, 0
-            for index in np.flatnonzero(nb.point_ids >= 0).tolist():
-                point = self.map.points.get(int(nb.point_ids[index]))
-                if point is None:
-                    continue
-                total += 1
-                redundant += self._seen_by_three_others(point.observations, nb.id, int(nb.features.octave[index]) + 1, octaves)
-            if total and redundant > self.settings.keyframe_redundancy * total:
+            rows = self.map.rows_with_points(nb.point_ids)
+            if len(rows) == 0:
+                continue
+            point_row, kf_ids, indices = self.map.observation_table(nb.point_ids[rows].tolist())
+            finer = self.map.gather_features(kf_ids, indices, "octave") <= nb.features.octave[rows][point_row] + 1
+            seen = np.bincount(point_row[(kf_ids != nb.id) & finer], minlength=len(rows))
+            if np.count_nonzero(seen >= 3) > self.settings.keyframe_redundancy * len(rows):
                 self.map.remove_keyframe(nb.id)
-                del octaves[nb.id]
-
-    @staticmethod
-    def _seen_by_three_others(observations: dict[int, int], kf_id: int, max_octave: int, octaves: dict[int, np.ndarray]) -> bool:
-        seen = 0
-        for other, index in observations.items():
-            octave = octaves.get(other)
-            if other != kf_id and octave is not None and octave[index] <= max_octave:
-                seen += 1
-                if seen == 3:
-                    return True
-        return False
 
 
 class MappingWorker:

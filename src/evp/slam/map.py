@@ -311,11 +311,10 @@ class Map:
         return min(self.keyframes, default=None)
 
     def median_depth(self, kf: KeyFrame) -> float:
-        ids = kf.point_ids[kf.point_ids >= 0]
-        positions = np.array([self.points[int(i)].position for i in ids if int(i) in self.points]).reshape(-1, 3)
-        if len(positions) == 0:
+        ids = kf.point_ids[self.rows_with_points(kf.point_ids)]
+        if len(ids) == 0:
             return 1.0
-        depth = positions @ kf.T_cw[2, :3] + kf.T_cw[2, 3]
+        depth = self.store.position[ids] @ kf.T_cw[2, :3] + kf.T_cw[2, 3]
         return float(np.median(depth))
 
     def point_array(self) -> tuple[np.ndarray, np.ndarray]:

@@ -49,7 +49,7 @@ def test_band_keeps_true_pairs_and_equals_the_distance_rule(motion):
     lines = np.c_[xa, np.ones(len(xa))] @ E.T
     distance = np.abs(lines @ np.c_[xb, np.ones(len(xb))].T) / np.hypot(lines[:, 0], lines[:, 1])[:, None]
     expected = distance <= tolerance[None, :]
-    near_edge = np.abs(distance - tolerance[None, :]) < 1e-12  # rounding may decide these either way
+    near_edge = np.abs(distance - tolerance[None, :]) < 1e-6  # float32 may decide these either way
     got = np.zeros_like(expected)
     got[rows, cols] = True
     assert np.array_equal(got[~near_edge], expected[~near_edge])

@@ -120,7 +120,7 @@ def pairs_within(xy_a: np.ndarray, radius: np.ndarray, xy_b: np.ndarray) -> tupl
     key_b = key_b[order_b]
     cell_a = ((xy_a - origin) // cell).astype(np.int64)
     offsets = np.arange(-reach.max(), reach.max() + 1)
-    point, row_offset = np.nonzero(np.abs(offsets)[None, :] <= reach[:, None])  # (point, grid row) runs
+    point, row_offset = np.divmod(np.flatnonzero(np.abs(offsets)[None, :] <= reach[:, None]), len(offsets))  # (point, grid row) runs
     row = cell_a[point, 1] + offsets[row_offset]
     start = np.searchsorted(key_b, row * columns + cell_a[point, 0] - reach[point], "left")
     stop = np.searchsorted(key_b, row * columns + cell_a[point, 0] + reach[point], "right")

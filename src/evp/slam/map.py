@@ -10,6 +10,7 @@ import json
 import threading
 from collections import Counter
 from dataclasses import dataclass, field
+from itertools import chain
 from pathlib import Path
 
 import numpy as np
@@ -205,16 +206,18 @@ class Map:
     def observation_table(self, point_ids: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Every observation of ``point_ids`` by a live keyframe, point by point: (position in
         ``point_ids``, keyframe id, feature index) as three integer arrays. The one walk over the
-        observation dictionaries that map-wide computations need; the rest is array work."""
-        rows, kf_ids, indices = [], [], []
-        keyframes = self.keyframes
-        for row, point_id in enumerate(point_ids):
-            for kf_id, index in self.points[point_id].observations.items():
-                if kf_id in keyframes:
-                    rows.append(row)
-                    kf_ids.append(kf_id)
-                    indices.append(index)
-        return np.array(rows, int), np.array(kf_ids, int), np.array(indices, int)
+        observation dictionaries that map-wide computations need (read by ``np.fromiter``, not
+        a Python loop); the rest is array work."""
+        observations = [self.points[point_id].observations for point_id in point_ids]
+        counts = np.fromiter(map(len, observations), np.int64, len(observations))
+        total = int(counts.sum())
+        kf_ids = np.fromiter(chain.from_iterable(observations), np.int64, total)
+        indices = np.fromiter(chain.from_iterable(o.values() for o in observations), np.int64, total)
+        rows = np.repeat(np.arange(len(point_ids)), counts)
+        live = np.zeros(self._next_kf + 1, bool)
+        live[np.fromiter(self.keyframes, np.int64, len(self.keyframes))] = True
+        keep = live[kf_ids]
+        return rows[keep], kf_ids[keep], indices[keep]
 
     def gather_features(self, kf_ids: np.ndarray, indices: np.ndarray, attribute: str) -> np.ndarray:
         """``features.<attribute>[index]`` of each (keyframe, feature index) pair: one fancy

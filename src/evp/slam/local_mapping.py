@@ -27,6 +27,7 @@ from evp.slam.fusion import fuse_points
 from evp.slam.loop_closing import LoopCloser
 from evp.slam.map import KeyFrame, Map
 from evp.slam.map_adjustment import apply_solution, whole_map_problem, window_problem
+from evp.slam.projection import undistorted_bounds
 from evp.vision.matching import TH_LOW, best_unique_pairs, hamming_pairs, rotation_consistent
 from evp.vision.orb import OrbExtractor
 
@@ -43,6 +44,7 @@ class LocalMapper:
         self.extractor = extractor
         self.settings = settings
         self.K = extractor.camera.K
+        self.bounds = undistorted_bounds(extractor)
         self.adjuster = adjuster or LocalAdjustment()  # tracking may interrupt its local windows
         self.recent_points: list[int] = []
         self.keyframes_waiting: Callable[[], bool] = lambda: False
@@ -177,11 +179,14 @@ class LocalMapper:
     def _fuse_into_neighbours(self, kf: KeyFrame) -> None:
         """Project the keyframe's points into its neighbours (ORB-SLAM's Fuse)."""
         ids = [int(i) for i in kf.point_ids[kf.point_ids >= 0]]
+        changed: set[int] = set()
         for neighbour_id in kf.best_covisible(self.settings.covisible_keyframes):
             with self._locked():
                 nb = self.map.keyframes.get(neighbour_id)
                 if nb is not None and self._in_map(kf):
-                    fuse_points(self.map, self.extractor, self.K, nb, ids)
+                    changed |= fuse_points(self.map, self.extractor, self.K, self.bounds, nb, ids)
+        with self._locked():
+            self.map.refresh_points(sorted(p for p in changed if p in self.map.points), self.extractor.scale_factors)
 
     def _local_window(self, kf: KeyFrame) -> tuple[BundleProblem, list[int], list[int]] | None:
         """The keyframe and its best covisible neighbours, free; other keyframes seeing their

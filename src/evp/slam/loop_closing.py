@@ -27,7 +27,7 @@ from evp.geometry.transforms import se3_inverse
 from evp.slam.essential_graph import optimise_pose_graph
 from evp.slam.fusion import fuse_points
 from evp.slam.map import KeyFrame, Map
-from evp.slam.projection import project_points
+from evp.slam.projection import project_points, undistorted_bounds
 from evp.slam.sim3_estimation import estimate_sim3
 from evp.vision.matching import TH_HIGH, TH_LOW, match_descriptors, match_in_window, rotation_consistent
 from evp.vision.orb import OrbExtractor
@@ -60,6 +60,7 @@ class LoopCloser:
         self.extractor = extractor
         self.settings = settings
         self.K = extractor.camera.K
+        self.bounds = undistorted_bounds(extractor)
         self.closures: list[LoopClosure] = []
         self._groups: list[tuple[set[int], int]] = []  # candidate groups and their detection streaks
         self._last_loop_kf = -(10**9)
@@ -132,7 +133,7 @@ class LoopCloser:
         """Add to ``matches`` the loop points found by projection through ``S_kw``."""
         taken = set(matches.values())
         ids = np.array([p for p in point_ids if p not in taken], int)
-        projection = project_points(self.map, ids, S_kw.to_se3()[0], self.extractor, self.K)
+        projection = project_points(self.map, ids, S_kw.to_se3()[0], self.extractor, self.K, self.bounds)
         if projection is None:
             return
         free = np.array([i for i in range(len(kf.features)) if i not in matches], int)
@@ -209,10 +210,11 @@ class LoopCloser:
             else:
                 self.map.add_observation(point, kf, index)
         loop_points = self._loop_points(loop.keyframe)
+        changed = set(loop_points)
         for k in [kf.id, *kf.covisible]:
             if k in self.map.keyframes:
-                fuse_points(self.map, self.extractor, self.K, self.map.keyframes[k], loop_points, radius_px=4.0)
-        self.map.refresh_points([p for p in loop_points if p in self.map.points], self.extractor.scale_factors)
+                changed |= fuse_points(self.map, self.extractor, self.K, self.bounds, self.map.keyframes[k], loop_points, radius_px=4.0)
+        self.map.refresh_points(sorted(p for p in changed if p in self.map.points), self.extractor.scale_factors)
 
     def _optimise_graph(self, before: dict[int, np.ndarray], corrected: dict[int, Sim3], loop_edges: set[tuple[int, int]], fixed_kf: int) -> None:
         """Spread the loop's correction over the map (essential graph over similarities), then

@@ -46,14 +46,17 @@ def undistorted_bounds(extractor: OrbExtractor) -> tuple[float, float, float, fl
     return float(un[:, 0].min()), float(un[:, 1].min()), float(un[:, 0].max()), float(un[:, 1].max())
 
 
-def project_points(slam_map: Map, ids: np.ndarray | list[int], T_cw: np.ndarray, extractor: OrbExtractor, K: np.ndarray, bounds=None) -> Projection | None:
+def project_points(
+    slam_map: Map, ids: np.ndarray | list[int], T_cw: np.ndarray, extractor: OrbExtractor, K: np.ndarray, bounds: tuple[float, float, float, float]
+) -> Projection | None:
+    """``bounds``: :func:`undistorted_bounds`, computed once per camera by the caller."""
     if len(ids) == 0:
         return None
     store = slam_map.store
     positions, normals, min_d, max_d = store.position[ids], store.normal[ids], store.min_distance[ids], store.max_distance[ids]
     uv = pinhole_pixels(positions @ T_cw[:3, :3].T + T_cw[:3, 3], K)
     u, v = uv[:, 0], uv[:, 1]
-    u_min, v_min, u_max, v_max = bounds if bounds is not None else undistorted_bounds(extractor)
+    u_min, v_min, u_max, v_max = bounds
     ok = (u >= u_min) & (u <= u_max) & (v >= v_min) & (v <= v_max)  # False for NaN: behind the camera
     centre = -T_cw[:3, :3].T @ T_cw[:3, 3]
     ray = positions - centre

@@ -259,7 +259,8 @@ class Map:
                 a = np.broadcast_to(stacks[:, :, None], pairs).ravel()
                 b = np.broadcast_to(stacks[:, None, :], pairs).ravel()
                 distances = hamming_pairs(descriptors, descriptors, a, b).reshape(pairs)
-                best = np.argmin(np.median(distances, axis=2), axis=1)
+                middle = np.partition(distances, [(count - 1) // 2, count // 2], axis=2)  # np.median's two middles
+                best = np.argmin(middle[:, :, (count - 1) // 2] + middle[:, :, count // 2], axis=1)
             self.store.descriptor[ids[group]] = descriptors[stacks[np.arange(len(group)), best]]
 
     def _update_geometry(self, point_ids: list[int], rows: np.ndarray, kf_ids: np.ndarray, indices: np.ndarray, scale_factors: np.ndarray) -> None:

@@ -6,14 +6,15 @@ level's quota is then filled cell by cell (round robin over a grid), preferring 
 the *initial* threshold and falling back to weaker ones only in cells that have none — the
 per-cell ini/min threshold rule of ORB-SLAM, done in one detection pass.
 
-Each pyramid level is detected and described by its own single-level OpenCV ORB, so the levels
-can be split into two groups of about equal area, the coarse one in a second thread (OpenCV
-releases the GIL): extraction uses both cores of a small machine, with exactly the features one
-OpenCV pyramid would give.
+Each pyramid level is detected and described by its own single-level OpenCV ORB, so two threads
+share the levels (OpenCV releases the GIL): extraction uses both cores of a small machine, with
+exactly the features one OpenCV pyramid would give.
 """
 
 from __future__ import annotations
 
+import threading
+from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -68,16 +69,8 @@ def _per_level(total: int, scale_factor: float, levels: int) -> np.ndarray:
     return share
 
 
-def _split_levels(scale_factors: np.ndarray) -> list[list[int]]:
-    """Levels in two groups of about equal area, fine [0, k) and coarse [k, L) (one if L = 1)."""
-    area = np.cumsum(scale_factors**-2.0)
-    split = int(np.searchsorted(area, area[-1] / 2)) + 1
-    levels = list(range(len(scale_factors)))
-    return [levels[:split], levels[split:]] if split < len(levels) else [levels]
-
-
 class OrbExtractor:
-    """``parallel``: the coarse levels in a second thread (the default); off, every level in the
+    """``parallel``: a second thread shares the levels (the default); off, every level in the
     caller's thread (same features)."""
 
     def __init__(self, settings: OrbSettings, camera: CameraModel, parallel: bool = True):
@@ -105,12 +98,25 @@ class OrbExtractor:
             )
             for n in retained
         ]
-        self._level_groups = _split_levels(self.scale_factors) if parallel else [list(range(levels))]
-        self._helper = ThreadPoolExecutor(1, thread_name_prefix="orb") if len(self._level_groups) > 1 else None
+        self._helper = ThreadPoolExecutor(1, thread_name_prefix="orb") if parallel and levels > 1 else None
 
     def extract(self, grey: np.ndarray) -> Features:
-        coarse = [self._helper.submit(self._extract_levels, levels, grey) for levels in self._level_groups[1:]]
-        parts = self._extract_levels(self._level_groups[0], grey) + [part for job in coarse for part in job.result()]
+        """Level 0 in the caller's thread at once; the helper builds the rest of the pyramid, then
+        both take the next level left, largest first, until none is (the per-level cost is not
+        proportional to the area, so a fixed split left one thread waiting 4 ms on MH01)."""
+        pyramid: list[np.ndarray | None] = [grey] + [None] * (len(self.scale_factors) - 1)
+        built = threading.Event()
+        waiting = deque(range(1, len(self.scale_factors)))
+        found: dict[int, tuple[np.ndarray, ...] | None] = {}
+        if self._helper is None:
+            self._build_pyramid(pyramid, built)
+            self._extract_queued(deque(range(len(pyramid))), pyramid, built, found)
+        else:
+            job = self._helper.submit(self._build_then_extract, waiting, pyramid, built, found)
+            found[0] = self._extract_level(0, grey)
+            self._extract_queued(waiting, pyramid, built, found)
+            job.result()
+        parts = [found[level] for level in sorted(found) if found[level] is not None]
         if not parts:
             return self._empty()
         px = np.vstack([part[0] for part in parts])
@@ -118,22 +124,27 @@ class OrbExtractor:
         un_px = normalised * [self.camera.fx, self.camera.fy] + [self.camera.cx, self.camera.cy]
         return Features(px, un_px, normalised, *(np.concatenate([part[k] for part in parts]) for k in (1, 2)), np.vstack([part[3] for part in parts]))
 
-    def _extract_levels(self, levels: list[int], grey: np.ndarray) -> list[tuple[np.ndarray, ...]]:
-        """(px at level 0, octave, angle, descriptors) of the kept features of each level.
+    def _build_pyramid(self, pyramid: list[np.ndarray | None], built: threading.Event) -> None:
+        """Each level resized from the one before, as OpenCV builds its pyramid."""
+        height, width = pyramid[0].shape
+        for level in range(1, len(pyramid)):
+            size = (round(width / self.scale_factors[level]), round(height / self.scale_factors[level]))
+            pyramid[level] = cv2.resize(pyramid[level - 1], size, interpolation=cv2.INTER_LINEAR_EXACT)
+        built.set()
 
-        Positions are level pixels times scale_factor^level, OpenCV's (and ORB-SLAM's) convention."""
-        parts = []
-        height, width = grey.shape
-        image = grey
-        for level in range(levels[-1] + 1):
-            if level > 0:  # each level resized from the one before, as OpenCV builds its pyramid
-                size = (round(width / self.scale_factors[level]), round(height / self.scale_factors[level]))
-                image = cv2.resize(image, size, interpolation=cv2.INTER_LINEAR_EXACT)
-            if level in levels:
-                part = self._extract_level(level, image)
-                if part is not None:
-                    parts.append(part)
-        return parts
+    def _build_then_extract(self, waiting: deque, pyramid: list, built: threading.Event, found: dict) -> None:
+        self._build_pyramid(pyramid, built)
+        self._extract_queued(waiting, pyramid, built, found)
+
+    def _extract_queued(self, waiting: deque, pyramid: list, built: threading.Event, found: dict) -> None:
+        """Take levels from ``waiting`` (a deque's popleft is atomic) until it is empty."""
+        built.wait()
+        while True:
+            try:
+                level = waiting.popleft()
+            except IndexError:
+                return
+            found[level] = self._extract_level(level, pyramid[level])
 
     def _extract_level(self, level: int, image: np.ndarray) -> tuple[np.ndarray, ...] | None:
         detector = self._level_detectors[level]

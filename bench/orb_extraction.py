@@ -1,6 +1,6 @@
 """ORB extraction alone, on the same frames in one run: OpenCV's own ORB (the issue's reference),
-EVP's extractor in the caller's thread, and EVP's extractor with the coarse pyramid levels in a
-second thread (the default). The three are timed frame by frame in turn, so machine load hits
+EVP's extractor in the caller's thread, and EVP's extractor with a second thread sharing the
+pyramid levels (the default). The three are timed frame by frame in turn, so machine load hits
 them alike.
 
 Usage: python bench/orb_extraction.py [--frames 100] [--only NAME ...]

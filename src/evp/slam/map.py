@@ -214,8 +214,9 @@ class Map:
         kf_ids = np.fromiter(chain.from_iterable(observations), np.int64, total)
         indices = np.fromiter(chain.from_iterable(o.values() for o in observations), np.int64, total)
         rows = np.repeat(np.arange(len(point_ids)), counts)
-        live = np.zeros(self._next_kf + 1, bool)
-        live[np.fromiter(self.keyframes, np.int64, len(self.keyframes))] = True
+        alive = np.fromiter(self.keyframes, np.int64, len(self.keyframes))
+        live = np.zeros(max(kf_ids.max(initial=-1), alive.max(initial=-1)) + 1, bool)
+        live[alive] = True
         keep = live[kf_ids]
         return rows[keep], kf_ids[keep], indices[keep]
 

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import threading
+
 import cv2
 import numpy as np
 import pytest
 
 from evp.config import OrbSettings
 from evp.types import CameraModel
+from evp.vision import orb as orb_module
 from evp.vision.orb import CELL_PX, EDGE_PX, OrbExtractor, usable_levels
 
 
@@ -126,3 +129,20 @@ def test_per_level_extraction_gives_the_features_of_one_opencv_pyramid():
         again = extractor.extract(image)
         np.testing.assert_array_equal(again.px, ours.px)
         assert np.all(np.diff(again.octave) >= 0)
+
+
+def test_a_failure_in_the_helper_thread_is_raised_not_waited_for(monkeypatch):
+    """The caller waits for the helper's pyramid: if building it fails, the error must come back
+    to the caller instead of leaving it waiting."""
+    extractor = _extractor()
+    image = np.full((480, 640), 128, np.uint8)
+
+    def broken_resize(*args, **kwargs):
+        raise cv2.error("resize failed")
+
+    monkeypatch.setattr(orb_module.cv2, "resize", broken_resize)
+    outcome: list[BaseException] = []
+    worker = threading.Thread(target=lambda: outcome.append(pytest.raises(cv2.error, extractor.extract, image).value), daemon=True)
+    worker.start()
+    worker.join(timeout=10)
+    assert not worker.is_alive() and len(outcome) == 1

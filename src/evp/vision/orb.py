@@ -105,16 +105,18 @@ class OrbExtractor:
         both take the next level left, largest first, until none is (the per-level cost is not
         proportional to the area, so a fixed split left one thread waiting 4 ms on MH01)."""
         pyramid: list[np.ndarray | None] = [grey] + [None] * (len(self.scale_factors) - 1)
-        built = threading.Event()
-        waiting = deque(range(1, len(self.scale_factors)))
         found: dict[int, tuple[np.ndarray, ...] | None] = {}
         if self._helper is None:
-            self._build_pyramid(pyramid, built)
-            self._extract_queued(deque(range(len(pyramid))), pyramid, built, found)
+            self._build_pyramid(pyramid)
+            self._extract_queued(deque(range(len(pyramid))), pyramid, found)
         else:
+            waiting, built = deque(range(1, len(pyramid))), threading.Event()
             job = self._helper.submit(self._build_then_extract, waiting, pyramid, built, found)
             found[0] = self._extract_level(0, grey)
-            self._extract_queued(waiting, pyramid, built, found)
+            built.wait()
+            if pyramid[-1] is None:
+                job.result()  # building failed: raise the helper's error here
+            self._extract_queued(waiting, pyramid, found)
             job.result()
         parts = [found[level] for level in sorted(found) if found[level] is not None]
         if not parts:
@@ -124,21 +126,22 @@ class OrbExtractor:
         un_px = normalised * [self.camera.fx, self.camera.fy] + [self.camera.cx, self.camera.cy]
         return Features(px, un_px, normalised, *(np.concatenate([part[k] for part in parts]) for k in (1, 2)), np.vstack([part[3] for part in parts]))
 
-    def _build_pyramid(self, pyramid: list[np.ndarray | None], built: threading.Event) -> None:
+    def _build_pyramid(self, pyramid: list[np.ndarray | None]) -> None:
         """Each level resized from the one before, as OpenCV builds its pyramid."""
         height, width = pyramid[0].shape
         for level in range(1, len(pyramid)):
             size = (round(width / self.scale_factors[level]), round(height / self.scale_factors[level]))
             pyramid[level] = cv2.resize(pyramid[level - 1], size, interpolation=cv2.INTER_LINEAR_EXACT)
-        built.set()
 
     def _build_then_extract(self, waiting: deque, pyramid: list, built: threading.Event, found: dict) -> None:
-        self._build_pyramid(pyramid, built)
-        self._extract_queued(waiting, pyramid, built, found)
+        try:
+            self._build_pyramid(pyramid)
+        finally:
+            built.set()  # the caller waits for it, even when building failed
+        self._extract_queued(waiting, pyramid, found)
 
-    def _extract_queued(self, waiting: deque, pyramid: list, built: threading.Event, found: dict) -> None:
+    def _extract_queued(self, waiting: deque, pyramid: list, found: dict) -> None:
         """Take levels from ``waiting`` (a deque's popleft is atomic) until it is empty."""
-        built.wait()
         while True:
             try:
                 level = waiting.popleft()

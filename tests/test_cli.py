@@ -61,8 +61,16 @@ def test_eval_contract_json_and_report(tmp_path):
     assert metrics["rmse"] < 0.005
     assert metrics["options"]["align"] == "sim3"
     assert yaml.safe_load((tmp_path / "report" / "settings.yaml").read_text())["eval"]["align"] == "sim3"
-    for name in ("top_view.png", "ape_over_time.png", "ape_histogram.png", "ape_boxplot.png", "report.md"):
+    plots = ("top_view.png", "ape_over_time.png", "ape_histogram.png", "ape_boxplot.png")
+    for name in plots:
         assert (tmp_path / "report" / name).stat().st_size > 1000
+    # the summary's length moves with number formatting: check what it says, not its size
+    report = (tmp_path / "report" / "report.md").read_text()
+    assert f"matched poses: {len(truth)}" in report and "alignment: sim3" in report
+    for statistic in ("rmse", "median", "iqr"):
+        assert f"| {statistic} |" in report
+    for name in plots:
+        assert f"]({name})" in report
     none = json.loads((evp("eval", gt, tmp_path / "est.tum", "--align", "none", "--json", tmp_path / "n.json"), (tmp_path / "n.json").read_text())[1])
     assert none["rmse"] > 1.0
     bad = evp("eval", gt, tmp_path / "est.tum", "--align", "affine")

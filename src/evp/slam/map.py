@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import threading
+import zipfile
 from collections import Counter
 from dataclasses import dataclass, field
 from itertools import chain
@@ -367,9 +368,12 @@ class Map:
         from evp.errors import EvpError
 
         try:
-            data = np.load(Path(path), allow_pickle=False)
+            with np.load(Path(path), allow_pickle=False) as archive:
+                # each array read once: indexing the archive decompresses the whole array again, and
+                # per keyframe that took 26 GB for a 520-keyframe map (every slice kept its own copy)
+                data = {name: archive[name] for name in archive.files}
             meta = json.loads(str(data["meta"]))
-        except (OSError, ValueError, KeyError) as exc:
+        except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as exc:
             raise EvpError(f"{path}: not an EVP map file ({exc})") from exc
         if meta.get("format") != "evp-map":
             raise EvpError(f"{path}: not an EVP map file")

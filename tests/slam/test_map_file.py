@@ -1,0 +1,87 @@
+"""The map file (``map.npz``): a round trip, bounded reading however many keyframes, and a clear
+error for a file that is not a map."""
+
+from collections import Counter
+
+import numpy as np
+import pytest
+
+from evp.errors import EvpError
+from evp.slam.map import Map
+from evp.vision.orb import Features
+
+SCALES = 1.2 ** np.arange(8)
+
+
+def _map(keyframes: int, features: int, rng: np.random.Generator) -> Map:
+    """Keyframes along a line looking at points 2 m ahead, each point seen by 3 keyframes."""
+    slam_map = Map()
+    points = rng.uniform([-1, -1, 1.5], [1, 1, 2.5], (keyframes + 2, 3))
+    for k in range(keyframes):
+        px = rng.uniform(0, 640, (features, 2))
+        normalised = (px - [320, 190]) / 500.0
+        feats = Features(px, px.copy(), normalised, rng.integers(0, 8, features), rng.uniform(0, 360, features), rng.integers(0, 256, (features, 32), dtype=np.uint8))
+        T_cw = np.eye(4)
+        T_cw[0, 3] = -0.05 * k
+        slam_map.add_keyframe(float(k), T_cw, feats, np.zeros(1200, np.float32))
+    for i, position in enumerate(points):
+        point = slam_map.add_point(position, rng.integers(0, 256, 32, dtype=np.uint8), max(0, i - 2))
+        for k in range(max(0, i - 2), min(keyframes, i + 1)):
+            slam_map.add_observation(point, slam_map.keyframes[k], i % features)
+    for kf in slam_map.keyframes.values():
+        slam_map.update_covisibility(kf)
+    slam_map.refresh_points(list(slam_map.points), SCALES)
+    return slam_map
+
+
+def test_a_saved_map_loads_back_the_same(tmp_path):
+    original = _map(12, 50, np.random.default_rng(0))
+    original.save(tmp_path / "map.npz")
+    loaded = Map.load(tmp_path / "map.npz", SCALES)
+    assert sorted(loaded.keyframes) == sorted(original.keyframes)
+    assert sorted(loaded.points) == sorted(original.points)
+    for point_id, point in original.points.items():
+        assert np.allclose(loaded.points[point_id].position, point.position)
+        assert loaded.points[point_id].observations == point.observations
+    for kf_id, kf in original.keyframes.items():
+        assert np.array_equal(loaded.keyframes[kf_id].point_ids, kf.point_ids)
+        assert np.array_equal(loaded.keyframes[kf_id].features.descriptors, kf.features.descriptors)
+        assert np.allclose(loaded.keyframes[kf_id].T_cw, kf.T_cw)
+
+
+def test_each_array_is_read_from_the_file_once_however_many_keyframes(tmp_path, monkeypatch):
+    """Indexing an ``np.load`` archive decompresses the whole array each time: read per keyframe,
+    a 520-keyframe map took 26 GB to load. Reads must not grow with the keyframes."""
+    _map(40, 30, np.random.default_rng(1)).save(tmp_path / "map.npz")
+    reads: Counter[str] = Counter()
+    archive_type = type(np.load(tmp_path / "map.npz"))
+    original_getitem = archive_type.__getitem__
+
+    def counting_getitem(self, key):
+        reads[key] += 1
+        return original_getitem(self, key)
+
+    monkeypatch.setattr(archive_type, "__getitem__", counting_getitem)
+    loaded = Map.load(tmp_path / "map.npz", SCALES)
+    assert len(loaded.keyframes) == 40
+    assert reads and max(reads.values()) == 1, reads.most_common(3)
+
+
+@pytest.mark.parametrize(
+    "content",
+    [b"", b"not a zip archive at all", b"PK\x03\x04truncated"],
+    ids=["empty", "text", "truncated zip"],
+)
+def test_a_file_that_is_not_a_map_is_a_clear_error(tmp_path, content):
+    path = tmp_path / "map.npz"
+    path.write_bytes(content)
+    with pytest.raises(EvpError, match="not an EVP map file"):
+        Map.load(path, SCALES)
+
+
+def test_a_map_cut_short_is_a_clear_error(tmp_path):
+    _map(5, 20, np.random.default_rng(2)).save(tmp_path / "map.npz")
+    whole = (tmp_path / "map.npz").read_bytes()
+    (tmp_path / "cut.npz").write_bytes(whole[: len(whole) // 2])
+    with pytest.raises(EvpError, match="not an EVP map file"):
+        Map.load(tmp_path / "cut.npz", SCALES)

@@ -92,7 +92,9 @@ class SlamSettings(_Section):
     ba_evaluations: int = Field(6, ge=1, description="solver evaluations per outlier round")
     keyframe_redundancy: float = Field(0.9, gt=0, le=1, description="a keyframe whose points this share is seen by 3 others is culled")
     loop_closing: bool = Field(True, description="detect returns to mapped places and correct the drift (pose graph + global bundle adjustment)")
-    loop_min_similarity: float = Field(0.5, ge=-1, le=1, description="least global-descriptor correlation of a loop candidate")
+    vocabulary: str = Field(
+        "", description="bag-of-words vocabulary file for place recognition ('' = the one shipped, trained on EVP's renders; evp vocabulary build)"
+    )
     loop_min_matches: int = Field(40, ge=20, description="map point matches that confirm a loop")
     final_bundle_adjustment: bool = Field(
         True,

@@ -1,6 +1,7 @@
 """The map file (``map.npz``): a round trip, bounded reading however many keyframes, and a clear
 error for a file that is not a map."""
 
+import json
 from collections import Counter
 
 import numpy as np
@@ -9,6 +10,7 @@ import pytest
 from evp.errors import EvpError
 from evp.slam.map import Map
 from evp.vision.orb import Features
+from evp.vision.vocabulary import BowVector
 
 SCALES = 1.2 ** np.arange(8)
 
@@ -20,10 +22,13 @@ def _map(keyframes: int, features: int, rng: np.random.Generator) -> Map:
     for k in range(keyframes):
         px = rng.uniform(0, 640, (features, 2))
         normalised = (px - [320, 190]) / 500.0
-        feats = Features(px, px.copy(), normalised, rng.integers(0, 8, features), rng.uniform(0, 360, features), rng.integers(0, 256, (features, 32), dtype=np.uint8))
+        feats = Features(
+            px, px.copy(), normalised, rng.integers(0, 8, features), rng.uniform(0, 360, features), rng.integers(0, 256, (features, 32), dtype=np.uint8)
+        )
         T_cw = np.eye(4)
         T_cw[0, 3] = -0.05 * k
-        slam_map.add_keyframe(float(k), T_cw, feats, np.zeros(1200, np.float32))
+        words = np.sort(rng.choice(1000, 40, replace=False)).astype(np.int32)
+        slam_map.add_keyframe(float(k), T_cw, feats, BowVector(words, np.full(40, 1 / 40)))
     for i, position in enumerate(points):
         point = slam_map.add_point(position, rng.integers(0, 256, 32, dtype=np.uint8), max(0, i - 2))
         for k in range(max(0, i - 2), min(keyframes, i + 1)):
@@ -47,6 +52,10 @@ def test_a_saved_map_loads_back_the_same(tmp_path):
         assert np.array_equal(loaded.keyframes[kf_id].point_ids, kf.point_ids)
         assert np.array_equal(loaded.keyframes[kf_id].features.descriptors, kf.features.descriptors)
         assert np.allclose(loaded.keyframes[kf_id].T_cw, kf.T_cw)
+        assert np.array_equal(loaded.keyframes[kf_id].bow.words, kf.bow.words) and np.allclose(loaded.keyframes[kf_id].bow.weights, kf.bow.weights)
+    # the place-recognition database is rebuilt: a keyframe's own vector finds it first
+    for kf_id, kf in original.keyframes.items():
+        assert loaded.database.relocalisation_candidates(kf.bow, loaded.keyframes, 1) == [kf_id]
 
 
 def test_each_array_is_read_from_the_file_once_however_many_keyframes(tmp_path, monkeypatch):
@@ -77,6 +86,16 @@ def test_a_file_that_is_not_a_map_is_a_clear_error(tmp_path, content):
     path.write_bytes(content)
     with pytest.raises(EvpError, match="not an EVP map file"):
         Map.load(path, SCALES)
+
+
+def test_a_map_of_an_older_format_is_refused_by_name(tmp_path):
+    _map(3, 10, np.random.default_rng(3)).save(tmp_path / "map.npz")
+    with np.load(tmp_path / "map.npz") as archive:
+        arrays = {name: archive[name] for name in archive.files}
+    arrays["meta"] = np.array(json.dumps({**json.loads(str(arrays["meta"])), "version": 1}))
+    np.savez(tmp_path / "old.npz", **arrays)
+    with pytest.raises(EvpError, match="map format version 1"):
+        Map.load(tmp_path / "old.npz", SCALES)
 
 
 def test_a_map_cut_short_is_a_clear_error(tmp_path):

@@ -3,6 +3,7 @@
 import numpy as np
 
 from evp.slam.map import Map
+from evp.vision.vocabulary import BowVector
 
 
 def test_points_keep_their_values_when_the_store_grows():
@@ -40,7 +41,7 @@ def _observed_map(rng: np.random.Generator) -> tuple[Map, np.ndarray]:
         )
         T_cw = np.eye(4)
         T_cw[:3, 3] = rng.normal(size=3) * 2.0
-        slam_map.add_keyframe(float(k), T_cw, features, np.zeros(4))
+        slam_map.add_keyframe(float(k), T_cw, features, BowVector(np.zeros(0, np.int32), np.zeros(0)))
     for j in range(300):
         point = slam_map.add_point(rng.normal(size=3) * 5.0, np.zeros(32, np.uint8), int(rng.integers(0, 40)))
         for k in rng.choice(40, int(rng.integers(1, 13)), replace=False):

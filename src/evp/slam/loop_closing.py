@@ -3,9 +3,9 @@ two ends of the map and spread the drift between them.
 
 For each keyframe local mapping has finished:
 
-1. detection: keyframes that look alike (the relocaliser's global descriptor) and are not
-   already covisible with it, scoring at least as well as its own covisible neighbours, and found
-   again for three keyframes in a row (a place seen once by chance is not a loop);
+1. detection: keyframes whose bag-of-words vectors look alike (``keyframe_database.py``) and are
+   not already covisible with it, scoring at least as well as its own covisible neighbours, and
+   found again for three keyframes in a row (a place seen once by chance is not a loop);
 2. verification: descriptor matches between the two keyframes' map points, a similarity
    (pose and scale: a monocular map drifts in both) by RANSAC, then the loop side's points are
    projected through it to find more matches; at least ``loop_min_matches`` are needed;
@@ -27,15 +27,17 @@ from evp.geometry.transforms import se3_inverse
 from evp.slam.essential_graph import optimise_pose_graph
 from evp.slam.fusion import fuse_points
 from evp.slam.map import KeyFrame, Map
+from evp.slam.pose_optimizer import optimise_pose, rotation_std_deg
 from evp.slam.projection import project_points, undistorted_bounds
 from evp.slam.sim3_estimation import estimate_sim3
-from evp.vision.matching import TH_HIGH, TH_LOW, match_descriptors, match_in_window, rotation_consistent
+from evp.vision.matching import TH_LOW, match_descriptors, match_in_window, rotation_consistent
 from evp.vision.orb import OrbExtractor
 
 MIN_KEYFRAMES = 20  # no loop in a map smaller than this (ORB-SLAM: 10 keyframes since the last loop)
 NEIGHBOUR_MIN_WEIGHT = 30  # covisible neighbours setting the similarity bar (ORB-SLAM's)
 CONSISTENT_DETECTIONS = 3  # keyframes in a row that must find the same place
 GRAPH_MIN_WEIGHT = 100  # covisibility edges kept in the essential graph (ORB-SLAM's)
+LOOP_MAX_ROTATION_STD_DEG = 0.5  # a loop's matches must fix the keyframe's rotation this well (1 sigma at 1 px)
 
 
 @dataclass(frozen=True)
@@ -81,15 +83,10 @@ class LoopCloser:
         if len(keyframes) < MIN_KEYFRAMES or kf.id - self._last_loop_kf < MIN_KEYFRAMES:
             self._groups = []
             return []
+        database = self.map.database
         neighbours = [k for k in kf.best_covisible(len(kf.covisible), NEIGHBOUR_MIN_WEIGHT) if k in keyframes]
-        bar = min((float(kf.thumbnail @ keyframes[k].thumbnail) for k in neighbours), default=1.0)
-        connected = set(kf.covisible) | {kf.id}
-        others = [k for k in keyframes if k not in connected]
-        if not others:
-            self._groups = []
-            return []
-        scores = np.array([keyframes[k].thumbnail for k in others]) @ kf.thumbnail
-        candidates = [others[i] for i in np.argsort(-scores) if scores[i] >= max(bar, self.settings.loop_min_similarity)]
+        bar = min((database.score(kf.id, k) for k in neighbours), default=1.0)
+        candidates = database.loop_candidates(kf.id, keyframes, set(kf.covisible), bar)
         groups, accepted = [], []
         for k in candidates:
             group = {k} | set(keyframes[k].covisible)
@@ -120,9 +117,33 @@ class LoopCloser:
         S_kw = S_ab @ Sim3.from_se3(loop_kf.T_cw)
         matches = {int(i): int(loop_kf.point_ids[j]) for i, j in zip(ia[inliers], ib[inliers], strict=True)}
         self._search_loop_points(kf, S_kw, self._loop_points(loop_kf), matches)
+        S_kw, matches = self._agreeing_matches(kf, S_kw, matches)
         if len(matches) < self.settings.loop_min_matches:
             return None
         return _Candidate(loop_kf, S_kw, matches)
+
+    def _agreeing_matches(self, kf: KeyFrame, S_kw: Sim3, matches: dict[int, int]) -> tuple[Sim3, dict[int, int]]:
+        """The keyframe's pose in the loop's world refined on every match (pose-only, Huber kernel,
+        chi-square rounds; the similarity's scale kept), and the matches that agree with it; none
+        when they fix the rotation worse than :data:`LOOP_MAX_ROTATION_STD_DEG`.
+
+        On repetitive ground a wrong similarity finds look-alikes near its wrong projections; they
+        do not agree on one pose and drop out here. A place seen again over a part of the image
+        (bag-of-words candidates come before the views coincide) may give true matches that barely
+        fix the pose: on a tiled floor, 79 matches in a strip of the image slid the keyframe 27
+        degrees away to absorb 1 cm of drift. Such a loop would add error, not remove it; a later
+        keyframe with more overlap closes it."""
+        rows = np.fromiter(matches, int, len(matches))
+        ids = np.array([matches[r] for r in rows.tolist()], int)
+        if len(rows) < 6:
+            return S_kw, {}
+        features = kf.features
+        positions, inv_sigma2 = self.map.store.position[ids], self.extractor.inv_level_sigma2[features.octave[rows]]
+        T, agree = optimise_pose(S_kw.to_se3()[0], positions, features.un_px[rows], inv_sigma2, self.K)
+        if agree.sum() < 6 or rotation_std_deg(T, positions[agree], inv_sigma2[agree], self.K).max() > LOOP_MAX_ROTATION_STD_DEG:
+            return S_kw, {}
+        scale = float(S_kw.s[0])
+        return Sim3.one(scale, T[:3, :3], T[:3, 3] * scale), dict(zip(rows[agree].tolist(), ids[agree].tolist()))
 
     def _loop_points(self, loop_kf: KeyFrame) -> list[int]:
         """Points of the loop keyframe and its best covisible neighbours."""
@@ -145,7 +166,7 @@ class LoopCloser:
             features.descriptors[free],
             features.un_px[free],
             radius,
-            TH_HIGH,
+            TH_LOW,  # ORB-SLAM's bar here: TH_HIGH let a wrong similarity collect look-alikes
             1.0,
             projection.level,
             features.octave[free],

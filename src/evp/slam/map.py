@@ -17,8 +17,12 @@ from pathlib import Path
 import numpy as np
 
 from evp.geometry.transforms import se3_inverse
+from evp.slam.keyframe_database import KeyframeDatabase
 from evp.vision.matching import hamming_pairs
 from evp.vision.orb import Features
+from evp.vision.vocabulary import BowVector
+
+MAP_FORMAT_VERSION = 2  # 2: keyframes carry bag-of-words vectors (1: thumbnails)
 
 
 @dataclass
@@ -28,7 +32,7 @@ class KeyFrame:
     T_cw: np.ndarray
     features: Features
     point_ids: np.ndarray  # (N,) map point id per feature, -1 where none
-    thumbnail: np.ndarray  # global appearance descriptor (see relocalisation)
+    bow: BowVector  # bag-of-words vector of its descriptors (place recognition)
     covisible: Counter = field(default_factory=Counter)  # keyframe id -> shared points
     centre: np.ndarray = field(init=False)  # camera centre in the world, kept in step with T_cw
 
@@ -121,6 +125,7 @@ class Map:
         self.keyframes: dict[int, KeyFrame] = {}
         self.points: dict[int, MapPoint] = {}
         self.store = PointStore()
+        self.database = KeyframeDatabase()  # the keyframes' bag-of-words vectors, kept in step
         self.lock = threading.RLock()
         self._next_kf = 0
         self._next_point = 0
@@ -131,10 +136,11 @@ class Map:
 
     # --- creation -----------------------------------------------------------------------
 
-    def add_keyframe(self, timestamp: float, T_cw: np.ndarray, features: Features, thumbnail: np.ndarray) -> KeyFrame:
-        kf = KeyFrame(self._next_kf, timestamp, T_cw.copy(), features, np.full(len(features), -1, int), thumbnail)
+    def add_keyframe(self, timestamp: float, T_cw: np.ndarray, features: Features, bow: BowVector) -> KeyFrame:
+        kf = KeyFrame(self._next_kf, timestamp, T_cw.copy(), features, np.full(len(features), -1, int), bow)
         self._next_kf += 1
         self.keyframes[kf.id] = kf
+        self.database.add(kf.id, bow)
         return kf
 
     def add_point(self, position: np.ndarray, descriptor: np.ndarray, first_kf: int) -> MapPoint:
@@ -171,6 +177,7 @@ class Map:
 
     def remove_keyframe(self, kf_id: int) -> None:
         kf = self.keyframes.pop(kf_id)
+        self.database.remove(kf_id)
         parent = next((k for k in kf.best_covisible(len(kf.covisible)) if k in self.keyframes), None)
         if parent is not None:
             self.removed_parents[kf_id] = (parent, kf.T_cw @ se3_inverse(self.keyframes[parent].T_cw))
@@ -350,7 +357,9 @@ class Map:
             "kf_ids": np.array([k.id for k in kfs], int),
             "kf_timestamps": np.array([k.timestamp for k in kfs]),
             "kf_T_cw": np.array([k.T_cw for k in kfs]).reshape(-1, 4, 4),
-            "kf_thumbnails": np.array([k.thumbnail for k in kfs]),
+            "kf_bow_sizes": np.array([len(k.bow) for k in kfs], int),
+            "bow_words": np.concatenate([k.bow.words for k in kfs]) if kfs else np.zeros(0, np.int32),
+            "bow_weights": np.concatenate([k.bow.weights for k in kfs]) if kfs else np.zeros(0),
             "kf_sizes": np.array([len(k.features) for k in kfs], int),
             "point_ids": point_ids,
             "point_positions": positions,
@@ -360,7 +369,7 @@ class Map:
         for name in ("px", "un_px", "normalised", "octave", "angle", "descriptors"):
             arrays[f"feat_{name}"] = np.concatenate([getattr(k.features, name) for k in kfs]) if kfs else np.zeros(0)
         arrays["feat_point_ids"] = np.concatenate([k.point_ids for k in kfs]) if kfs else np.zeros(0, int)
-        meta = {"format": "evp-map", "version": 1, "next_kf": self._next_kf, "next_point": self._next_point}
+        meta = {"format": "evp-map", "version": MAP_FORMAT_VERSION, "next_kf": self._next_kf, "next_point": self._next_point}
         np.savez_compressed(Path(path), meta=np.array(json.dumps(meta)), **arrays)
 
     @classmethod
@@ -377,10 +386,14 @@ class Map:
             raise EvpError(f"{path}: not an EVP map file ({exc})") from exc
         if meta.get("format") != "evp-map":
             raise EvpError(f"{path}: not an EVP map file")
+        if meta.get("version") != MAP_FORMAT_VERSION:
+            raise EvpError(f"{path}: map format version {meta.get('version')}; this EVP reads version {MAP_FORMAT_VERSION} (build the map again)")
         result = cls()
         offsets = np.r_[0, np.cumsum(data["kf_sizes"])]
+        bow_offsets = np.r_[0, np.cumsum(data["kf_bow_sizes"])]
         for row, kf_id in enumerate(data["kf_ids"]):
             a, b = offsets[row], offsets[row + 1]
+            bow = BowVector(data["bow_words"][bow_offsets[row] : bow_offsets[row + 1]], data["bow_weights"][bow_offsets[row] : bow_offsets[row + 1]])
             features = Features(*(data[f"feat_{n}"][a:b] for n in ("px", "un_px", "normalised", "octave", "angle", "descriptors")))
             kf = KeyFrame(
                 int(kf_id),
@@ -388,9 +401,10 @@ class Map:
                 data["kf_T_cw"][row],
                 features,
                 data["feat_point_ids"][a:b].astype(int),
-                data["kf_thumbnails"][row],
+                bow,
             )
             result.keyframes[kf.id] = kf
+            result.database.add(kf.id, bow)
         for row, point_id in enumerate(data["point_ids"]):
             result.points[int(point_id)] = MapPoint(
                 result.store, int(point_id), data["point_positions"][row], data["point_descriptors"][row], int(data["point_first_kf"][row])

@@ -61,16 +61,31 @@ def _gauss_newton(T: np.ndarray, P: np.ndarray, obs: np.ndarray, w_info: np.ndar
     return T, False
 
 
-def _gauss_newton_step(T: np.ndarray, P: np.ndarray, obs: np.ndarray, w_info: np.ndarray, K: np.ndarray, robust: bool) -> np.ndarray | None:
-    """The increment ``xi`` minimising the (Huber-weighted) reprojection error to first order."""
+def rotation_std_deg(T_cw: np.ndarray, points: np.ndarray, inv_sigma2: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Standard deviation (degrees) of the pose's rotation about each camera axis, at one pixel of
+    noise per pyramid-level sigma: how well these points fix the pose. Points in a strip of the
+    image, on a plane, leave tilt and sideways shift nearly interchangeable (a large value)."""
+    _, J = _residuals_and_jacobian(T_cw, points, np.zeros((len(points), 2)), K)
+    WJ = (J * inv_sigma2[:, None]).reshape(-1, 6)
+    information = WJ.T @ J.reshape(-1, 6)
+    try:
+        covariance = np.linalg.inv(information)
+    except np.linalg.LinAlgError:
+        return np.full(3, np.inf)
+    return np.degrees(np.sqrt(np.maximum(np.diag(covariance)[:3], 0.0)))
+
+
+def _residuals_and_jacobian(T: np.ndarray, P: np.ndarray, obs: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Reprojection residuals (2, N: u rows, then v rows) and their Jacobian (2, N, 6) with
+    respect to a left increment ``xi = (omega, v)`` of ``T``."""
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     pc = P @ T[:3, :3].T + T[:3, 3]
     iz = 1.0 / np.maximum(pc[:, 2], 1e-6)
     xz, yz = pc[:, 0] * iz, pc[:, 1] * iz
-    r = np.empty((2, len(P)))  # u residuals, then v residuals
+    r = np.empty((2, len(P)))
     r[0] = fx * xz + cx - obs[:, 0]
     r[1] = fy * yz + cy - obs[:, 1]
-    # d(residual)/d(point in camera), then d(point)/d(xi) = [-[pc]x | I]; u rows, then v rows
+    # d(residual)/d(point in camera), then d(point)/d(xi) = [-[pc]x | I]
     J = np.zeros((2, len(P), 6))
     J[0, :, 0] = -fx * xz * yz
     J[0, :, 1] = fx * (1 + xz * xz)
@@ -82,6 +97,12 @@ def _gauss_newton_step(T: np.ndarray, P: np.ndarray, obs: np.ndarray, w_info: np
     J[1, :, 2] = fy * xz
     J[1, :, 4] = fy * iz
     J[1, :, 5] = -fy * yz * iz
+    return r, J
+
+
+def _gauss_newton_step(T: np.ndarray, P: np.ndarray, obs: np.ndarray, w_info: np.ndarray, K: np.ndarray, robust: bool) -> np.ndarray | None:
+    """The increment ``xi`` minimising the (Huber-weighted) reprojection error to first order."""
+    r, J = _residuals_and_jacobian(T, P, obs, K)
     weight = w_info
     if robust:
         e = np.sqrt((r[0] * r[0] + r[1] * r[1]) * w_info)

@@ -16,6 +16,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass
 from itertools import chain
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -30,11 +31,13 @@ from evp.slam.map import KeyFrame, Map
 from evp.slam.map_adjustment import adjust_whole_map
 from evp.slam.pose_optimizer import optimise_pose
 from evp.slam.projection import project_points, undistorted_bounds
-from evp.slam.relocalisation import rank_keyframes, thumbnail
 from evp.types import CameraModel, Frame, PoseEstimate, TrackingState
 from evp.vision.images import grey_image
 from evp.vision.matching import TH_HIGH, TH_LOW, match_descriptors, match_in_window, rotation_consistent
 from evp.vision.orb import Features, OrbExtractor
+from evp.vision.vocabulary import BowVector, Vocabulary, default_vocabulary_path
+
+RELOCALISATION_CANDIDATES = 5  # keyframes verified by PnP per lost frame, best place first
 
 
 @dataclass
@@ -52,7 +55,6 @@ class _InitReference:
     """The frame initialisation matches later frames against."""
 
     features: Features
-    grey: np.ndarray
     record: int  # index of its record in SlamSystem.records
 
 
@@ -72,6 +74,7 @@ class SlamSystem:
         self.K = camera.K
         self.bounds = undistorted_bounds(self.extractor)
         self.map = Map()
+        self.vocabulary = Vocabulary.load(Path(self.settings.vocabulary) if self.settings.vocabulary else default_vocabulary_path())
         if self.settings.mapping == "thread":
             self.mapping: MappingWorker | InlineMapping = MappingWorker(LocalMapper(self.map, self.extractor, self.settings, AdjustmentProcess()))
         else:
@@ -104,11 +107,11 @@ class SlamSystem:
         features = self.extractor.extract(grey)
         self.extraction_ms.append((time.perf_counter() - start) * 1000.0)
         if self.state == TrackingState.NOT_INITIALIZED:
-            T_cw = self._initialise(frame, grey, features)
+            T_cw = self._initialise(frame, features)
         elif self.state == TrackingState.LOST:
-            T_cw = self._relocalise(frame.timestamp, grey, features)
+            T_cw = self._relocalise(frame.timestamp, features)
         else:
-            T_cw = self._track(frame.timestamp, grey, features)
+            T_cw = self._track(frame.timestamp, features)
         self.tracking_ms.append((time.perf_counter() - start) * 1000.0)
         return self._answer(frame, T_cw)
 
@@ -158,19 +161,19 @@ class SlamSystem:
 
     # --- initialisation ---------------------------------------------------------------------
 
-    def _initialise(self, frame: Frame, grey: np.ndarray, features: Features) -> np.ndarray | None:
+    def _initialise(self, frame: Frame, features: Features) -> np.ndarray | None:
         s = self.settings
         reference = self._init_reference
         if reference is None or len(features) < s.init_min_matches:
             if len(features) >= s.init_min_matches:
-                self._init_reference = self._reference_here(features, grey)
+                self._init_reference = self._reference_here(features)
             return None
         ref = reference.features
         rows, cols = match_in_window(ref.descriptors, ref.un_px, features.descriptors, features.un_px, s.init_search_radius_px, TH_LOW, 0.9)
         keep = rotation_consistent(ref.angle[rows], features.angle[cols])
         rows, cols = rows[keep], cols[keep]
         if len(rows) < s.init_min_matches:
-            self._init_reference = self._reference_here(features, grey)
+            self._init_reference = self._reference_here(features)
             return None
         result = initial_two_view(
             ref.normalised[rows], features.normalised[cols], self.camera.fx, s.init_min_parallax_deg, s.init_min_triangulated, s.homography_ratio
@@ -178,8 +181,8 @@ class SlamSystem:
         if result is None or result.good.sum() < s.init_min_triangulated:
             return None
         with self.map.lock:
-            kf0 = self.map.add_keyframe(self.records[reference.record].timestamp, np.eye(4), ref, thumbnail(reference.grey))
-            kf1 = self.map.add_keyframe(frame.timestamp, result.T21, features, thumbnail(grey))
+            kf0 = self.map.add_keyframe(self.records[reference.record].timestamp, np.eye(4), ref, self._bow(ref))
+            kf1 = self.map.add_keyframe(frame.timestamp, result.T21, features, self._bow(features))
             for a, b, position in zip(rows[result.good], cols[result.good], result.points[result.good], strict=True):
                 point = self.map.add_point(position, ref.descriptors[a], kf0.id)
                 self.map.add_observation(point, kf0, int(a))
@@ -204,8 +207,11 @@ class SlamSystem:
         self.state = TrackingState.OK
         return kf1.T_cw.copy()
 
-    def _reference_here(self, features: Features, grey: np.ndarray) -> _InitReference:
-        return _InitReference(features, grey, len(self.records))  # this frame's record comes next
+    def _reference_here(self, features: Features) -> _InitReference:
+        return _InitReference(features, len(self.records))  # this frame's record comes next
+
+    def _bow(self, features: Features) -> BowVector:
+        return self.vocabulary.transform(features.descriptors)
 
     def _rescale(self, factor: float) -> None:
         for kf in self.map.keyframes.values():
@@ -233,7 +239,7 @@ class SlamSystem:
 
     # --- tracking -------------------------------------------------------------------------
 
-    def _track(self, timestamp: float, grey: np.ndarray, features: Features) -> np.ndarray | None:
+    def _track(self, timestamp: float, features: Features) -> np.ndarray | None:
         with self.map.lock:
             if self.map.loops_closed != self._loops_seen:
                 self._follow_loop_correction()
@@ -260,7 +266,7 @@ class SlamSystem:
             self._last_inliers = inliers
             self._last = _TrackedFrame(timestamp, features, T_cw, matched.copy())
             if self._need_keyframe(inliers):
-                self._insert_keyframe(timestamp, features, T_cw, matched, grey)
+                self._insert_keyframe(timestamp, features, T_cw, matched)
         return T_cw
 
     def _follow_loop_correction(self) -> None:
@@ -432,21 +438,19 @@ class SlamSystem:
         # a busy mapper still takes a keyframe when tracking is weak, one at a time
         return idle or (weak and self.mapping.pending == 0)
 
-    def _insert_keyframe(self, timestamp: float, features: Features, T_cw: np.ndarray, matched: np.ndarray, grey: np.ndarray) -> None:
-        kf = self.map.add_keyframe(timestamp, T_cw, features, thumbnail(grey))
+    def _insert_keyframe(self, timestamp: float, features: Features, T_cw: np.ndarray, matched: np.ndarray) -> None:
+        kf = self.map.add_keyframe(timestamp, T_cw, features, self._bow(features))
         self._reference_kf = kf.id
         self._last_kf_frame = self._frame_count
         self.mapping.submit(NewKeyFrame(kf, matched.copy()))
 
     # --- relocalisation ---------------------------------------------------------------------
 
-    def _relocalise(self, timestamp: float, grey: np.ndarray, features: Features) -> np.ndarray | None:
+    def _relocalise(self, timestamp: float, features: Features) -> np.ndarray | None:
         with self.map.lock:
-            kf_ids = list(self.map.keyframes)
-            if not kf_ids or len(features) < 20:
+            if not self.map.keyframes or len(features) < 20:
                 return None
-            thumbs = np.array([self.map.keyframes[k].thumbnail for k in kf_ids])
-            for kf_id in rank_keyframes(thumbnail(grey), kf_ids, thumbs, 5):
+            for kf_id in self.map.database.relocalisation_candidates(self._bow(features), self.map.keyframes, RELOCALISATION_CANDIDATES):
                 T_cw = self._relocalise_against(timestamp, features, self.map.keyframes[kf_id])
                 if T_cw is not None:
                     self.state = TrackingState.RELOCALIZED

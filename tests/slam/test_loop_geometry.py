@@ -7,6 +7,7 @@ from scipy.spatial.transform import Rotation
 from evp.geometry.alignment import umeyama
 from evp.geometry.sim3 import Sim3
 from evp.slam.essential_graph import optimise_pose_graph
+from evp.slam.loop_closing import _Candidate, _corrections_agree
 from evp.slam.projection import pinhole_pixels
 from evp.slam.sim3_estimation import estimate_sim3
 
@@ -92,3 +93,19 @@ def test_pose_graph_spreads_a_loop_error_in_pose_and_scale():
         return np.sqrt(np.mean(np.sum((aligned - centres) ** 2, axis=1)))
 
     assert centre_error(optimised) < 0.6 * centre_error(initial)
+
+
+def _measured(rotvec_deg, std_deg):
+    """A loop verification of a keyframe: the correction it measured and how well."""
+    return _Candidate(None, None, {}, Rotation.from_rotvec(rotvec_deg, degrees=True).as_matrix(), std_deg)
+
+
+def test_a_loop_is_closed_when_keyframes_in_a_row_measure_the_same_correction():
+    # seed 3 of the rendered circle: one drift measured three times (0.4-0.8 degrees apart)
+    assert _corrections_agree([_measured([1.64, -2.66, 2.57], 0.3), _measured([1.82, -2.73, 2.26], 0.3), _measured([2.41, -2.17, 2.54], 0.3)])
+    # seed 1: a correction measured through points the map holds badly, sliding as overlap grows
+    assert not _corrections_agree([_measured([17.18, 2.75, 0.18], 0.3), _measured([15.14, 2.4, 0.4], 0.3), _measured([14.53, 3.28, 0.5], 0.3)])
+    # the tolerance is the measurements' own uncertainty: coarser ones may differ more
+    apart = [_measured([0, 0, 0], 0.3), _measured([0, 0, 1.5], 0.3), _measured([0, 0, 0.8], 0.3)]
+    assert not _corrections_agree(apart)
+    assert _corrections_agree([_measured([0, 0, angle], 0.6) for angle in (0, 1.5, 0.8)])

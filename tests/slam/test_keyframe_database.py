@@ -5,7 +5,7 @@ from collections import Counter
 import numpy as np
 
 from evp.slam.keyframe_database import KeyframeDatabase
-from evp.vision.vocabulary import BowVector
+from evp.vision.vocabulary import BowVector, bow_score
 
 
 class _Keyframe:
@@ -61,12 +61,13 @@ def test_keyframes_sharing_few_of_the_words_are_not_even_scored():
 
 
 def test_loop_candidates_leave_out_connected_keyframes_and_those_under_the_bar():
-    places = {0: _place(0), 1: _place(2), 5: _place(4), 6: _place(20)}
+    places = {0: _place(0), 1: _place(2), 5: _place(4), 6: _place(20), 7: _place(3)}
     database, keyframes = _database(places, {})
-    # keyframe 5 is connected (covisible) to 6; 0 and 1 are not, 1 looks most like it
-    assert database.loop_candidates(5, keyframes, connected={6}, min_score=0.0) == [1, 0]
-    # nothing scores 0.99 against keyframe 5
-    assert database.loop_candidates(5, keyframes, connected={6}, min_score=0.99) == []
+    # keyframe 5 is connected (covisible) to 6 and 7; 0 and 1 are not, 1 looks most like it
+    assert database.loop_candidates(5, keyframes, connected={6, 7}, neighbours=[6]) == [1, 0]
+    # the bar is the least alike neighbour's score: 7 shares 39 of 40 words, more than 1 or 0
+    assert database.loop_candidates(5, keyframes, connected={6, 7}, neighbours=[6, 7]) == [1, 0]
+    assert database.loop_candidates(5, keyframes, connected={6, 7}, neighbours=[7]) == []
 
 
 def test_removed_keyframes_are_forgotten():
@@ -78,3 +79,23 @@ def test_removed_keyframes_are_forgotten():
     assert database.relocalisation_candidates(_vector(_place(0)), keyframes, 5) == [2]
     database.remove(2)
     assert database.relocalisation_candidates(_vector(_place(0)), keyframes, 5) == []
+
+
+def test_scores_of_the_inverted_file_match_pairwise_scores_through_additions_and_removals():
+    rng = np.random.default_rng(3)
+    database = KeyframeDatabase()
+    vectors = {}
+    for kf_id in range(300):
+        words = np.unique(rng.integers(0, 2000, rng.integers(1, 80)))
+        weights = rng.random(len(words))
+        vectors[kf_id] = BowVector(words.astype(np.int32), weights / weights.sum())
+        database.add(kf_id, vectors[kf_id])
+        if kf_id % 5 < 3:  # most culled: dead entries pass half the arrays, which are then rebuilt
+            database.remove(int(rng.choice(list(database.vectors))))
+    assert database._size < sum(map(len, vectors.values()))
+    query = vectors[299]
+    ids, common, scores = database._shared(query)
+    expected = {k: bow_score(query, v) for k, v in database.vectors.items() if np.intersect1d(query.words, v.words).size}
+    assert ids.tolist() == sorted(expected)
+    np.testing.assert_allclose(scores, [expected[k] for k in ids.tolist()], rtol=1e-12)
+    assert common.tolist() == [np.intersect1d(query.words, database.vectors[k].words).size for k in ids.tolist()]

@@ -94,8 +94,7 @@ class LoopCloser:
             return []
         database = self.map.database
         neighbours = [k for k in kf.best_covisible(len(kf.covisible), NEIGHBOUR_MIN_WEIGHT) if k in keyframes]
-        bar = min((database.score(kf.id, k) for k in neighbours), default=1.0)
-        candidates = database.loop_candidates(kf.id, keyframes, set(kf.covisible), bar)
+        candidates = database.loop_candidates(kf.id, keyframes, set(kf.covisible), neighbours)
         groups, accepted = [], []
         for k in candidates:
             group = {k} | set(keyframes[k].covisible)

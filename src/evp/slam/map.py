@@ -51,7 +51,7 @@ class PointStore:
     """The per-point numbers tracking reads every frame, as arrays indexed by point id, so that
     thousands of points are gathered with one fancy index instead of a Python loop."""
 
-    COLUMNS = ("position", "normal", "min_distance", "max_distance", "descriptor")
+    COLUMNS = ("position", "normal", "min_distance", "max_distance", "descriptor", "alive")
 
     def __init__(self, capacity: int = 1024):
         self.position = np.zeros((capacity, 3))
@@ -59,6 +59,7 @@ class PointStore:
         self.min_distance = np.zeros(capacity)
         self.max_distance = np.full(capacity, np.inf)
         self.descriptor = np.zeros((capacity, 32), np.uint8)
+        self.alive = np.zeros(capacity, bool)  # the id names a point of the map
 
     def reserve(self, point_id: int) -> None:
         """Room for ``point_id`` (arrays double; views taken before do not follow)."""
@@ -114,6 +115,7 @@ class MapPoint:
         store.descriptor[point_id] = descriptor  # the most representative of its observations
         store.normal[point_id] = 0.0
         store.min_distance[point_id], store.max_distance[point_id] = 0.0, np.inf
+        store.alive[point_id] = True
 
     @property
     def found_ratio(self) -> float:
@@ -170,10 +172,15 @@ class Map:
         point = self.points.pop(point_id, None)
         if point is None:
             return
+        self.store.alive[point_id] = False
         for kf_id, index in point.observations.items():
             kf = self.keyframes.get(kf_id)
             if kf is not None and kf.point_ids[index] == point_id:
                 kf.point_ids[index] = -1
+
+    def remove_all_points(self) -> None:
+        self.points.clear()
+        self.store.alive[:] = False
 
     def remove_keyframe(self, kf_id: int) -> None:
         kf = self.keyframes.pop(kf_id)
@@ -208,6 +215,7 @@ class Map:
         new.found += old.found
         old.observations.clear()
         self.points.pop(old_id, None)
+        self.store.alive[old_id] = False
 
     # --- derived state ------------------------------------------------------------------
 
@@ -315,7 +323,7 @@ class Map:
         """Rows of a per-feature point-id array (-1 where none) that name a live point (mapping
         may have culled some since the array was filled)."""
         rows = np.flatnonzero(point_ids >= 0)
-        return rows[np.fromiter((int(i) in self.points for i in point_ids[rows]), bool, len(rows))]
+        return rows[self.store.alive[point_ids[rows]]]
 
     @property
     def origin_id(self) -> int | None:

@@ -224,7 +224,7 @@ class SlamSystem:
     def _discard_map(self) -> None:
         for kf_id in list(self.map.keyframes):
             self.map.remove_keyframe(kf_id)
-        self.map.points.clear()
+        self.map.remove_all_points()
 
     def _restart(self) -> None:
         """Tracking lost a map of a few keyframes: the start was wrong (too few points, or a

@@ -1,4 +1,4 @@
-"""Bundle adjustments solved in a helper process, for live mapping.
+"""Bundle adjustments (and a loop's pose graph) solved in a helper process, for live mapping.
 
 Python runs one thread at a time: a local bundle adjustment in the mapping thread (hundreds of
 small NumPy calls per window) keeps taking the interpreter from tracking, which then misses
@@ -12,12 +12,18 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import threading
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from evp.geometry.sim3 import Sim3
 from evp.slam.bundle_adjustment import BundleProblem, bundle_adjust
+
+if TYPE_CHECKING:
+    from evp.slam.loop_closing import GraphCorrection
 
 log = logging.getLogger(__name__)
 
@@ -33,6 +39,10 @@ def _solve_in_helper(problem: BundleProblem, evaluations: int, interruptible: bo
     return bundle_adjust(problem, evaluations, stop=_stop if interruptible else None)
 
 
+def _solve_graph(graph: GraphCorrection) -> Sim3:
+    return graph.solve()
+
+
 class LocalAdjustment:
     """Bundle adjustments solved in the calling thread (inline mapping, tests, replays)."""
 
@@ -45,6 +55,10 @@ class LocalAdjustment:
         if interruptible:
             self.stop.clear()
         return bundle_adjust(problem, evaluations, stop=self.stop if interruptible else None)
+
+    def solve_graph(self, graph: GraphCorrection) -> Sim3:
+        """A loop's pose graph, optimised (the caller holds no lock: tracking goes on)."""
+        return graph.solve()
 
     def interrupt(self) -> None:
         self.stop.set()
@@ -75,15 +89,22 @@ class AdjustmentProcess(LocalAdjustment):
             self._pool = None
 
     def solve(self, problem: BundleProblem, evaluations: int, interruptible: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if interruptible:
+            self.stop.clear()
+        return self._in_helper(_solve_in_helper, lambda: LocalAdjustment.solve(self, problem, evaluations, interruptible), problem, evaluations, interruptible)
+
+    def solve_graph(self, graph: GraphCorrection) -> Sim3:
+        return self._in_helper(_solve_graph, lambda: LocalAdjustment.solve_graph(self, graph), graph)
+
+    def _in_helper(self, function: Callable, here: Callable, *args):
+        """``function(*args)`` in the helper; ``here()`` in this thread once the helper is gone."""
         if self._pool is not None:
-            if interruptible:
-                self.stop.clear()
             try:
-                return self._pool.submit(_solve_in_helper, problem, evaluations, interruptible).result()
+                return self._pool.submit(function, *args).result()
             except BrokenProcessPool:
                 log.warning("the bundle adjustment helper process died; adjusting in the mapping thread from now on")
                 self._pool = None
-        return super().solve(problem, evaluations, interruptible)
+        return here()
 
     def close(self) -> None:
         if self._pool is not None:

@@ -61,6 +61,23 @@ class _Candidate:
     rotation_std_deg: float  # how well its matches fix that (1 sigma, largest axis)
 
 
+@dataclass
+class GraphCorrection:
+    """A loop's pose graph, built under the map lock and solved without it (tracking goes on);
+    :meth:`LoopCloser.apply` writes the solution back."""
+
+    closure: LoopClosure
+    keyframe_ids: list[int]  # the graph's nodes, ascending
+    initial: Sim3
+    fixed: np.ndarray
+    edge_i: np.ndarray
+    edge_j: np.ndarray
+    measured: Sim3
+
+    def solve(self) -> Sim3:
+        return optimise_pose_graph(self.initial, self.fixed, self.edge_i, self.edge_j, self.measured)
+
+
 class LoopCloser:
     def __init__(self, slam_map: Map, extractor: OrbExtractor, settings: SlamSettings):
         self.map = slam_map
@@ -73,9 +90,11 @@ class LoopCloser:
         self._verified: list[_Candidate] = []  # loops verified by the last keyframes in a row
         self._last_loop_kf = -(10**9)
 
-    def process(self, kf: KeyFrame) -> LoopClosure | None:
-        """Look for a loop at ``kf`` and correct the map when one is found (the caller holds the
-        map lock, and runs a global bundle adjustment after a correction)."""
+    def process(self, kf: KeyFrame) -> GraphCorrection | None:
+        """Look for a loop at ``kf``; when one is found, move the keyframe's side onto the loop
+        and merge the two, and return the pose graph that spreads the correction over the map
+        (the caller holds the map lock; it solves the graph without it, calls :meth:`apply`, then
+        runs a global bundle adjustment)."""
         for candidate in self._detect(kf):
             found = self._verify(kf, candidate)
             if found is not None:
@@ -155,19 +174,20 @@ class LoopCloser:
         scale = float(S_kw.s[0])
         return Sim3.one(scale, T[:3, :3], T[:3, 3] * scale), dict(zip(rows[agree].tolist(), ids[agree].tolist())), rotation_std
 
-    def _loop_points(self, loop_kf: KeyFrame) -> list[int]:
-        """Points of the loop keyframe and its best covisible neighbours."""
-        ids = {int(p) for k in [loop_kf.id, *loop_kf.best_covisible(10)] if k in self.map.keyframes for p in self.map.keyframes[k].point_ids if p >= 0}
-        return sorted(p for p in ids if p in self.map.points)
+    def _loop_points(self, loop_kf: KeyFrame) -> np.ndarray:
+        """Ids, ascending, of the points of the loop keyframe and its best covisible neighbours."""
+        keyframes = self.map.keyframes
+        seen = np.concatenate([keyframes[k].point_ids for k in [loop_kf.id, *loop_kf.best_covisible(10)] if k in keyframes])
+        ids = np.unique(seen[seen >= 0])
+        return ids[self.map.store.alive[ids]]
 
-    def _search_loop_points(self, kf: KeyFrame, S_kw: Sim3, point_ids: list[int], matches: dict[int, int]) -> None:
+    def _search_loop_points(self, kf: KeyFrame, S_kw: Sim3, point_ids: np.ndarray, matches: dict[int, int]) -> None:
         """Add to ``matches`` the loop points found by projection through ``S_kw``."""
-        taken = set(matches.values())
-        ids = np.array([p for p in point_ids if p not in taken], int)
+        ids = point_ids[~np.isin(point_ids, np.fromiter(matches.values(), int, len(matches)))]
         projection = project_points(self.map, ids, S_kw.to_se3()[0], self.extractor, self.K, self.bounds)
         if projection is None:
             return
-        free = np.array([i for i in range(len(kf.features)) if i not in matches], int)
+        free = np.setdiff1d(np.arange(len(kf.features)), np.fromiter(matches, int, len(matches)))
         features = kf.features
         radius = 10.0 * self.extractor.scale_factors[projection.level]
         a, b = match_in_window(
@@ -186,7 +206,7 @@ class LoopCloser:
 
     # --- correction -------------------------------------------------------------------------
 
-    def _correct(self, kf: KeyFrame, loop: _Candidate) -> LoopClosure:
+    def _correct(self, kf: KeyFrame, loop: _Candidate) -> GraphCorrection:
         keyframes = self.map.keyframes
         group = [kf.id] + [k for k in kf.covisible if k in keyframes]
         before = {k: keyframes[k].T_cw.copy() for k in keyframes}
@@ -203,14 +223,13 @@ class LoopCloser:
             (k, j) for k in group if k in keyframes for j in keyframes[k].covisible if j not in neighbours_before[k] and j not in group and j in keyframes
         }
         loop_edges.add((kf.id, loop.keyframe.id))
-        self._optimise_graph(before, corrected, loop_edges, loop.keyframe.id)
-        self.map.loops_closed += 1
+        self.map.corrections += 1  # tracking follows the moved keyframes
         self._last_loop_kf = kf.id
         self._groups = []
         self._verified = []
         closure = LoopClosure(kf.id, loop.keyframe.id, kf.timestamp, len(loop.matches), float(loop.S_kw.s[0]))
         self.closures.append(closure)
-        return closure
+        return self._graph(closure, before, corrected, loop_edges, loop.keyframe.id)
 
     def _move_points(self, kf_ids: list[int], old: Sim3, new: Sim3) -> None:
         """Points seen by ``kf_ids`` keep their place in their reference keyframe (their first
@@ -241,16 +260,18 @@ class LoopCloser:
                 self.map.replace_point(existing, point_id)
             else:
                 self.map.add_observation(point, kf, index)
-        loop_points = self._loop_points(loop.keyframe)
+        loop_points = self._loop_points(loop.keyframe).tolist()
         changed = set(loop_points)
         for k in [kf.id, *kf.covisible]:
             if k in self.map.keyframes:
                 changed |= fuse_points(self.map, self.extractor, self.K, self.bounds, self.map.keyframes[k], loop_points, radius_px=4.0)
         self.map.refresh_points(sorted(p for p in changed if p in self.map.points), self.extractor.scale_factors)
 
-    def _optimise_graph(self, before: dict[int, np.ndarray], corrected: dict[int, Sim3], loop_edges: set[tuple[int, int]], fixed_kf: int) -> None:
-        """Spread the loop's correction over the map (essential graph over similarities), then
-        move every point with its reference keyframe."""
+    def _graph(
+        self, closure: LoopClosure, before: dict[int, np.ndarray], corrected: dict[int, Sim3], loop_edges: set[tuple[int, int]], fixed_kf: int
+    ) -> GraphCorrection:
+        """The essential graph over all keyframes: covisibility edges keep the relative poses
+        mapping had found, loop edges the corrected ones; the loop keyframe stays fixed."""
         keyframes = self.map.keyframes
         ids = sorted(keyframes)
         slot = {k: n for n, k in enumerate(ids)}
@@ -268,7 +289,6 @@ class LoopCloser:
         initial = Sim3.stack([start[k] for k in ids])
         unmoved = Sim3.stack([Sim3.from_se3(before[k]) for k in ids])
         n_normal = len(pairs)
-        # normal edges keep the relative poses mapping had found; loop edges the corrected ones
         measured = Sim3.stack(
             [
                 unmoved[edge_i[:n_normal]] @ unmoved[edge_j[:n_normal]].inverse(),
@@ -276,11 +296,27 @@ class LoopCloser:
             ]
         )
         fixed = np.array([k == fixed_kf for k in ids])
-        optimised = optimise_pose_graph(initial, fixed, edge_i, edge_j, measured)
+        return GraphCorrection(closure, ids, initial, fixed, edge_i, edge_j, measured)
+
+    def apply(self, graph: GraphCorrection, optimised: Sim3) -> None:
+        """Write the solved graph back (the caller holds the map lock): keyframes take their
+        optimised poses and every point follows its reference keyframe. Keyframes tracking added
+        while the graph was solved follow the loop's keyframe, near which they were taken."""
+        keyframes = self.map.keyframes
+        if graph.closure.keyframe not in keyframes:  # tracking discarded the map meanwhile
+            return
+        ids = [k for k in graph.keyframe_ids if k in keyframes]
+        rows = np.searchsorted(graph.keyframe_ids, ids)
+        initial, optimised = graph.initial[rows], optimised[rows]
         self._move_points(ids, initial, optimised)
         poses = optimised.to_se3()
         for n, k in enumerate(ids):
             keyframes[k].set_pose(poses[n])
+        anchor = ids.index(graph.closure.keyframe)
+        follow = initial[anchor].inverse() @ optimised[anchor]  # world as optimised -> as the anchor was
+        for k in set(keyframes) - set(graph.keyframe_ids):
+            keyframes[k].set_pose((Sim3.from_se3(keyframes[k].T_cw[None]) @ follow).to_se3()[0])
+        self.map.corrections += 1
 
 
 def _corrections_agree(verified: list[_Candidate]) -> bool:

@@ -134,7 +134,7 @@ class Map:
         # culled keyframe id -> (parent keyframe id, T_kf_parent): frames that referenced a culled
         # keyframe still find their pose through its parent
         self.removed_parents: dict[int, tuple[int, np.ndarray]] = {}
-        self.loops_closed = 0  # bumped by each loop correction (keyframe poses jumped)
+        self.corrections = 0  # bumped each time loop closing moves keyframes (their poses jump)
 
     # --- creation -----------------------------------------------------------------------
 

@@ -93,7 +93,7 @@ class SlamSystem:
         self._last_kf_frame = 0
         self._last_reloc_frame = -(10**9)
         self._last_inliers = 0
-        self._loops_seen = 0
+        self._corrections_seen = 0
         self._globally_adjusted = False
 
     # --- public ---------------------------------------------------------------------------
@@ -241,7 +241,7 @@ class SlamSystem:
 
     def _track(self, timestamp: float, features: Features) -> np.ndarray | None:
         with self.map.lock:
-            if self.map.loops_closed != self._loops_seen:
+            if self.map.corrections != self._corrections_seen:
                 self._follow_loop_correction()
             matched = np.full(len(features), -1)
             T_cw = None
@@ -272,7 +272,7 @@ class SlamSystem:
     def _follow_loop_correction(self) -> None:
         """A loop correction moved the keyframes: the last frame moves with its reference
         keyframe, so the motion model predicts in the corrected map."""
-        self._loops_seen = self.map.loops_closed
+        self._corrections_seen = self.map.corrections
         record = self.records[-1] if self.records else None
         if record is None or record.timestamp != self._last.timestamp or record.reference_kf < 0:
             return

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 
 from evp.slam.adjustment_process import AdjustmentProcess, LocalAdjustment
+from evp.slam.loop_closing import GraphCorrection, LoopClosure
+from tests.slam.test_loop_geometry import drifting_circle_graph
 from tests.slam.test_optimisation import shifted_six_views
 
 
@@ -33,6 +35,15 @@ def test_helper_process_solves_as_the_thread_does(problem, helper):
     assert np.abs(remote[0] - truth).max() < 1e-6
     # a global adjustment (not interruptible) takes the same path
     assert np.array_equal(helper.solve(bundle, 20, interruptible=False)[0], local[0])
+
+
+def test_a_loops_pose_graph_is_solved_in_the_helper_as_in_the_thread(helper):
+    _, initial, fixed, edge_i, edge_j, measured = drifting_circle_graph()
+    graph = GraphCorrection(LoopClosure(19, 0, 0.0, 100, 1.0), list(range(len(initial))), initial, fixed, edge_i, edge_j, measured)
+    remote, local = helper.solve_graph(graph), LocalAdjustment().solve_graph(graph)
+    for name in ("s", "R", "t"):
+        assert np.array_equal(getattr(remote, name), getattr(local, name))
+    assert not np.allclose(remote.t, initial.t)  # the graph moved the poses
 
 
 def test_mapping_goes_on_in_the_thread_when_the_helper_dies(problem, helper, caplog):

@@ -59,9 +59,9 @@ def test_unrelated_points_give_no_similarity():
     assert estimate_sim3(Xa, Xb, pinhole_pixels(Xa, K), pinhole_pixels(Xb, K), ones, ones, K) is None
 
 
-def test_pose_graph_spreads_a_loop_error_in_pose_and_scale():
-    # twenty poses around a circle; odometry edges drift 1 % in scale per step, the loop edge is exact
-    n = 20
+def drifting_circle_graph(n: int = 20):
+    """Poses around a circle whose odometry edges drift 1 % in scale per step, and an exact loop
+    edge: (centres, initial, fixed, edge_i, edge_j, measured)."""
     angles = np.linspace(0, 2 * np.pi, n, endpoint=False)
     R_cw = Rotation.from_euler("z", -angles[:, None]).as_matrix()
     centres = np.c_[3 * np.cos(angles), 3 * np.sin(angles), np.zeros(n)]
@@ -78,6 +78,12 @@ def test_pose_graph_spreads_a_loop_error_in_pose_and_scale():
     loop = truth[[0]] @ truth[[n - 1]].inverse()
     measured = Sim3.stack([measured_odometry, loop])
     fixed = np.arange(n) == 0
+    return centres, initial, fixed, edge_i, edge_j, measured
+
+
+def test_pose_graph_spreads_a_loop_error_in_pose_and_scale():
+    n = 20
+    centres, initial, fixed, edge_i, edge_j, measured = drifting_circle_graph(n)
 
     def loop_gap(poses):
         return np.linalg.norm((measured[[n - 1]].inverse() @ poses[[0]] @ poses[[n - 1]].inverse()).log())

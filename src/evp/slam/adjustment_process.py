@@ -39,10 +39,6 @@ def _solve_in_helper(problem: BundleProblem, evaluations: int, interruptible: bo
     return bundle_adjust(problem, evaluations, stop=_stop if interruptible else None)
 
 
-def _solve_graph(graph: GraphCorrection) -> Sim3:
-    return graph.solve()
-
-
 class LocalAdjustment:
     """Bundle adjustments solved in the calling thread (inline mapping, tests, replays)."""
 
@@ -94,7 +90,7 @@ class AdjustmentProcess(LocalAdjustment):
         return self._in_helper(_solve_in_helper, lambda: LocalAdjustment.solve(self, problem, evaluations, interruptible), problem, evaluations, interruptible)
 
     def solve_graph(self, graph: GraphCorrection) -> Sim3:
-        return self._in_helper(_solve_graph, lambda: LocalAdjustment.solve_graph(self, graph), graph)
+        return self._in_helper(graph.solve, graph.solve)
 
     def _in_helper(self, function: Callable, here: Callable, *args):
         """``function(*args)`` in the helper; ``here()`` in this thread once the helper is gone."""

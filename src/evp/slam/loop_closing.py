@@ -25,7 +25,7 @@ import numpy as np
 
 from evp.config import SlamSettings
 from evp.geometry.sim3 import Sim3
-from evp.geometry.transforms import se3_inverse
+from evp.geometry.transforms import rotation_angle, se3_inverse
 from evp.slam.essential_graph import optimise_pose_graph
 from evp.slam.fusion import fuse_points
 from evp.slam.map import KeyFrame, Map
@@ -326,7 +326,7 @@ def _corrections_agree(verified: list[_Candidate]) -> bool:
     four keyframes (the drift was 2)."""
     for i, a in enumerate(verified):
         for b in verified[i + 1 :]:
-            angle = np.degrees(np.arccos(np.clip((np.trace(a.correction.T @ b.correction) - 1.0) / 2.0, -1.0, 1.0)))
+            angle = np.degrees(rotation_angle(a.correction.T @ b.correction))
             if angle > 3.0 * np.hypot(a.rotation_std_deg, b.rotation_std_deg):
                 return False
     return True

@@ -9,7 +9,7 @@ recognises a place seen again from another heading or position (a thumbnail comp
 place and does not).
 
 Nothing can be downloaded where EVP runs: the shipped vocabulary is trained by EVP itself on images
-it renders (``evp vocabulary build``; see ``vision/vocabulary_data.py``), and users can train one on
+it renders (``evp vocabulary build``; see ``sim/vocabulary_images.py``), and users can train one on
 their own flights.
 """
 
@@ -193,27 +193,27 @@ def _with_weights(sets: list[np.ndarray], branching: int, depth: int, centres: n
     return Vocabulary(branching, depth, centres, table, word_of_node, idf, notes)
 
 
-def _distances_to(descriptors64: np.ndarray, centre: np.ndarray) -> np.ndarray:
-    return np.bitwise_count(descriptors64 ^ centre.view(np.uint64)).sum(axis=1, dtype=np.int64)
+def _distances_to(descriptors: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """Hamming distance of every descriptor to one centre."""
+    return hamming_pairs(descriptors, centre[None], np.arange(len(descriptors)), np.zeros(len(descriptors), int))
 
 
 def _k_medians(descriptors: np.ndarray, k: int, iterations: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """k centres (bitwise majority of their members) and each descriptor's label; k-means++
     seeding, as DBoW2. Clusters left empty are dropped, so fewer than k may come back."""
-    d64 = descriptors.view(np.uint64)
     chosen = [descriptors[rng.integers(len(descriptors))]]
-    nearest = _distances_to(d64, chosen[0]).astype(float)
+    nearest = _distances_to(descriptors, chosen[0]).astype(float)
     for _ in range(k - 1):
         weights = nearest**2
         if weights.sum() == 0:
             break  # every descriptor equals a centre already
         chosen.append(descriptors[rng.choice(len(descriptors), p=weights / weights.sum())])
-        nearest = np.minimum(nearest, _distances_to(d64, chosen[-1]))
+        nearest = np.minimum(nearest, _distances_to(descriptors, chosen[-1]))
     centres = np.array(chosen)
     bits = np.unpackbits(descriptors, axis=1).astype(np.float32)
     labels = np.full(len(descriptors), -1)
     for _ in range(iterations):
-        distances = np.stack([_distances_to(d64, c) for c in centres], axis=1)
+        distances = np.stack([_distances_to(descriptors, c) for c in centres], axis=1)
         new_labels = np.argmin(distances, axis=1)
         if np.array_equal(new_labels, labels):
             break

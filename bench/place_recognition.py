@@ -50,7 +50,7 @@ def _thumbnail(grey: np.ndarray) -> np.ndarray:
     return small / max(float(np.linalg.norm(small)), 1e-6)
 
 
-def _frames(name: str) -> list[np.ndarray]:
+def _frames(name: str) -> tuple[list[np.ndarray], CameraModel]:
     dataset = open_dataset(SHARED / name)
     return [grey_image(frame, dataset.camera) for frame in dataset.frames()], dataset.camera
 

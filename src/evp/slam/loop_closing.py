@@ -223,7 +223,6 @@ class LoopCloser:
             (k, j) for k in group if k in keyframes for j in keyframes[k].covisible if j not in neighbours_before[k] and j not in group and j in keyframes
         }
         loop_edges.add((kf.id, loop.keyframe.id))
-        self.map.corrections += 1  # tracking follows the moved keyframes
         self._last_loop_kf = kf.id
         self._groups = []
         self._verified = []
@@ -316,7 +315,6 @@ class LoopCloser:
         follow = initial[anchor].inverse() @ optimised[anchor]  # world as optimised -> as the anchor was
         for k in set(keyframes) - set(graph.keyframe_ids):
             keyframes[k].set_pose((Sim3.from_se3(keyframes[k].T_cw[None]) @ follow).to_se3()[0])
-        self.map.corrections += 1
 
 
 def _corrections_agree(verified: list[_Candidate]) -> bool:

@@ -134,7 +134,6 @@ class Map:
         # culled keyframe id -> (parent keyframe id, T_kf_parent): frames that referenced a culled
         # keyframe still find their pose through its parent
         self.removed_parents: dict[int, tuple[int, np.ndarray]] = {}
-        self.corrections = 0  # bumped each time loop closing moves keyframes (their poses jump)
 
     # --- creation -----------------------------------------------------------------------
 

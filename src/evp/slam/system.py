@@ -93,7 +93,6 @@ class SlamSystem:
         self._last_kf_frame = 0
         self._last_reloc_frame = -(10**9)
         self._last_inliers = 0
-        self._corrections_seen = 0
         self._globally_adjusted = False
 
     # --- public ---------------------------------------------------------------------------
@@ -106,14 +105,16 @@ class SlamSystem:
         start = time.perf_counter()
         features = self.extractor.extract(grey)
         self.extraction_ms.append((time.perf_counter() - start) * 1000.0)
-        if self.state == TrackingState.NOT_INITIALIZED:
-            T_cw = self._initialise(frame, features)
-        elif self.state == TrackingState.LOST:
-            T_cw = self._relocalise(frame.timestamp, features)
-        else:
-            T_cw = self._track(frame.timestamp, features)
+        with self.map.lock:  # the answer's record relates the pose to its keyframe as tracked
+            if self.state == TrackingState.NOT_INITIALIZED:
+                T_cw = self._initialise(frame, features)
+            elif self.state == TrackingState.LOST:
+                T_cw = self._relocalise(frame.timestamp, features)
+            else:
+                T_cw = self._track(frame.timestamp, features)
+            estimate = self._answer(frame, T_cw)
         self.tracking_ms.append((time.perf_counter() - start) * 1000.0)
-        return self._answer(frame, T_cw)
+        return estimate
 
     def settle(self) -> None:
         """Inline mapping: map the last frame's keyframe now (feed does it first otherwise), so a
@@ -241,8 +242,7 @@ class SlamSystem:
 
     def _track(self, timestamp: float, features: Features) -> np.ndarray | None:
         with self.map.lock:
-            if self.map.corrections != self._corrections_seen:
-                self._follow_loop_correction()
+            self._follow_reference_keyframe()
             matched = np.full(len(features), -1)
             T_cw = None
             if self._velocity is not None:
@@ -269,10 +269,11 @@ class SlamSystem:
                 self._insert_keyframe(timestamp, features, T_cw, matched)
         return T_cw
 
-    def _follow_loop_correction(self) -> None:
-        """A loop correction moved the keyframes: the last frame moves with its reference
-        keyframe, so the motion model predicts in the corrected map."""
-        self._corrections_seen = self.map.corrections
+    def _follow_reference_keyframe(self) -> None:
+        """The last frame moves with its reference keyframe (ORB-SLAM's UpdateLastFrame): since
+        it was tracked, bundle adjustment or a loop correction may have moved the map, and the
+        motion model must predict in the map as it is now. Left behind, the last pose puts the
+        map's shift into the velocity, which the next frames then repeat."""
         record = self.records[-1] if self.records else None
         if record is None or record.timestamp != self._last.timestamp or record.reference_kf < 0:
             return

@@ -105,7 +105,9 @@ class SlamSystem:
         start = time.perf_counter()
         features = self.extractor.extract(grey)
         self.extraction_ms.append((time.perf_counter() - start) * 1000.0)
-        with self.map.lock:  # the answer's record relates the pose to its keyframe as tracked
+        # a frame is handled under the map lock, its answer too: the answer's record relates the
+        # pose to its reference keyframe as tracked, before mapping can move that keyframe
+        with self.map.lock:
             if self.state == TrackingState.NOT_INITIALIZED:
                 T_cw = self._initialise(frame, features)
             elif self.state == TrackingState.LOST:
@@ -181,22 +183,21 @@ class SlamSystem:
         )
         if result is None or result.good.sum() < s.init_min_triangulated:
             return None
-        with self.map.lock:
-            kf0 = self.map.add_keyframe(self.records[reference.record].timestamp, np.eye(4), ref, self._bow(ref))
-            kf1 = self.map.add_keyframe(frame.timestamp, result.T21, features, self._bow(features))
-            for a, b, position in zip(rows[result.good], cols[result.good], result.points[result.good], strict=True):
-                point = self.map.add_point(position, ref.descriptors[a], kf0.id)
-                self.map.add_observation(point, kf0, int(a))
-                self.map.add_observation(point, kf1, int(b))
-            adjust_whole_map(self.map, self.extractor.scale_factors, self.K, evaluations=20)
-            depth = self.map.median_depth(kf0)
-            if depth <= 0 or len(self.map.points) < s.init_min_triangulated:
-                self._discard_map()
-                return None
-            self._rescale(s.initial_median_depth_m / depth)
-            self.map.refresh_points(list(self.map.points), self.extractor.scale_factors)
-            self.map.update_covisibility(kf0)
-            self.map.update_covisibility(kf1)
+        kf0 = self.map.add_keyframe(self.records[reference.record].timestamp, np.eye(4), ref, self._bow(ref))
+        kf1 = self.map.add_keyframe(frame.timestamp, result.T21, features, self._bow(features))
+        for a, b, position in zip(rows[result.good], cols[result.good], result.points[result.good], strict=True):
+            point = self.map.add_point(position, ref.descriptors[a], kf0.id)
+            self.map.add_observation(point, kf0, int(a))
+            self.map.add_observation(point, kf1, int(b))
+        adjust_whole_map(self.map, self.extractor.scale_factors, self.K, evaluations=20)
+        depth = self.map.median_depth(kf0)
+        if depth <= 0 or len(self.map.points) < s.init_min_triangulated:
+            self._discard_map()
+            return None
+        self._rescale(s.initial_median_depth_m / depth)
+        self.map.refresh_points(list(self.map.points), self.extractor.scale_factors)
+        self.map.update_covisibility(kf0)
+        self.map.update_covisibility(kf1)
         first = self.records[reference.record]
         first.reference_kf, first.T_frame_ref, first.state = kf0.id, np.eye(4), TrackingState.OK
         self._init_reference = None
@@ -241,32 +242,31 @@ class SlamSystem:
     # --- tracking -------------------------------------------------------------------------
 
     def _track(self, timestamp: float, features: Features) -> np.ndarray | None:
-        with self.map.lock:
-            self._follow_reference_keyframe()
-            matched = np.full(len(features), -1)
-            T_cw = None
-            if self._velocity is not None:
-                T_cw = self._track_motion_model(timestamp, features, matched)
-            if T_cw is None:
-                matched[:] = -1
-                T_cw = self._track_reference_keyframe(features, matched)
-            if T_cw is not None:
-                T_cw, inliers = self._track_local_map(features, matched, T_cw)
-                needed = self.settings.min_relocalised_inliers if self._frame_count - self._last_reloc_frame < 30 else self.settings.min_tracked_inliers
-                if inliers < needed:
-                    T_cw = None
-            if T_cw is None:
-                self.state = TrackingState.LOST
-                self._velocity = None
-                if len(self.map.keyframes) <= self.settings.restart_max_keyframes:
-                    self._restart()
-                return None
-            self._velocity = T_cw @ se3_inverse(self._last.T_cw)
-            self._velocity_dt = timestamp - self._last.timestamp
-            self._last_inliers = inliers
-            self._last = _TrackedFrame(timestamp, features, T_cw, matched.copy())
-            if self._need_keyframe(inliers):
-                self._insert_keyframe(timestamp, features, T_cw, matched)
+        self._follow_reference_keyframe()
+        matched = np.full(len(features), -1)
+        T_cw = None
+        if self._velocity is not None:
+            T_cw = self._track_motion_model(timestamp, features, matched)
+        if T_cw is None:
+            matched[:] = -1
+            T_cw = self._track_reference_keyframe(features, matched)
+        if T_cw is not None:
+            T_cw, inliers = self._track_local_map(features, matched, T_cw)
+            needed = self.settings.min_relocalised_inliers if self._frame_count - self._last_reloc_frame < 30 else self.settings.min_tracked_inliers
+            if inliers < needed:
+                T_cw = None
+        if T_cw is None:
+            self.state = TrackingState.LOST
+            self._velocity = None
+            if len(self.map.keyframes) <= self.settings.restart_max_keyframes:
+                self._restart()
+            return None
+        self._velocity = T_cw @ se3_inverse(self._last.T_cw)
+        self._velocity_dt = timestamp - self._last.timestamp
+        self._last_inliers = inliers
+        self._last = _TrackedFrame(timestamp, features, T_cw, matched.copy())
+        if self._need_keyframe(inliers):
+            self._insert_keyframe(timestamp, features, T_cw, matched)
         return T_cw
 
     def _follow_reference_keyframe(self) -> None:
@@ -448,18 +448,17 @@ class SlamSystem:
     # --- relocalisation ---------------------------------------------------------------------
 
     def _relocalise(self, timestamp: float, features: Features) -> np.ndarray | None:
-        with self.map.lock:
-            if not self.map.keyframes or len(features) < 20:
-                return None
-            for kf_id in self.map.database.relocalisation_candidates(self._bow(features), self.map.keyframes, RELOCALISATION_CANDIDATES):
-                T_cw = self._relocalise_against(timestamp, features, self.map.keyframes[kf_id])
-                if T_cw is not None:
-                    self.state = TrackingState.RELOCALIZED
-                    self.reset_counter += 1
-                    self._last_reloc_frame = self._frame_count
-                    self._reference_kf = kf_id
-                    self._velocity = None
-                    return T_cw
+        if not self.map.keyframes or len(features) < 20:
+            return None
+        for kf_id in self.map.database.relocalisation_candidates(self._bow(features), self.map.keyframes, RELOCALISATION_CANDIDATES):
+            T_cw = self._relocalise_against(timestamp, features, self.map.keyframes[kf_id])
+            if T_cw is not None:
+                self.state = TrackingState.RELOCALIZED
+                self.reset_counter += 1
+                self._last_reloc_frame = self._frame_count
+                self._reference_kf = kf_id
+                self._velocity = None
+                return T_cw
         return None
 
     def _relocalise_against(self, timestamp: float, features: Features, kf: KeyFrame) -> np.ndarray | None:

@@ -51,14 +51,26 @@ class LocalMapper:
         self.loop_closer = LoopCloser(slam_map, extractor, settings) if settings.loop_closing else None
 
     def process(self, item: NewKeyFrame) -> None:
+        if self.insert(item):
+            self.refine(item)
+
+    def insert(self, item: NewKeyFrame) -> bool:
+        """The keyframe's observations and new points (what tracking needs soonest); False when
+        tracking has since discarded its map."""
         kf = item.keyframe
         with self._locked():
             if not self._in_map(kf):
-                return
+                return False
             self._register_observations(kf, item.matched_points)
             self.map.update_covisibility(kf)
             self._cull_recent_points(kf)
         self._triangulate_new_points(kf)
+        return True
+
+    def refine(self, item: NewKeyFrame) -> None:
+        """Fusion, local bundle adjustment and keyframe culling after :meth:`insert`, then loop
+        detection."""
+        kf = item.keyframe
         if not self.keyframes_waiting():  # behind the camera: the next keyframe first (ORB-SLAM)
             self._fuse_into_neighbours(kf)
             with self._locked():

@@ -100,6 +100,11 @@ class SlamSettings(_Section):
         True,
         description="offline runs: one global bundle adjustment of the whole map before trajectory.tum is written (trajectory_live.tum keeps the live poses)",
     )
+    final_ba_points_per_keyframe: int = Field(
+        150,
+        ge=0,
+        description="the final global bundle adjustment sets the poses on each keyframe's this many longest-tracked points, then adjusts the other points on them (0 = every point at once)",
+    )
 
 
 class AlignmentSettings(_Section):

@@ -61,7 +61,8 @@ def _block_sums(index: np.ndarray, blocks: np.ndarray, count: int) -> np.ndarray
     """Sum of ``blocks[n]`` grouped by ``index[n]`` into ``count`` blocks of the same shape (one
     sparse product: about twice as fast as a bincount per entry)."""
     grouping = csr_matrix((np.ones(len(index)), (index, np.arange(len(index)))), shape=(count, len(index)))
-    return np.asarray(grouping @ blocks.reshape(len(blocks), -1)).reshape((count, *blocks.shape[1:]))
+    flat = blocks.reshape(len(blocks), int(np.prod(blocks.shape[1:])))  # not -1: no blocks at all when every pose is fixed
+    return np.asarray(grouping @ flat).reshape((count, *blocks.shape[1:]))
 
 
 def _outer(u: np.ndarray, v: np.ndarray) -> np.ndarray:

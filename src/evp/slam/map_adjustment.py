@@ -57,19 +57,54 @@ def apply_solution(
     slam_map.refresh_points([p for p in point_ids if p in slam_map.points], scale_factors, descriptor=False)
 
 
-def whole_map_problem(slam_map: Map, scale_factors: np.ndarray, K: np.ndarray) -> tuple[BundleProblem, list[int], list[int]] | None:
-    """Global bundle adjustment's problem: every keyframe and point, the first keyframe fixed."""
+def whole_map_problem(
+    slam_map: Map, scale_factors: np.ndarray, K: np.ndarray, point_ids: list[int] | None = None
+) -> tuple[BundleProblem, list[int], list[int]] | None:
+    """Global bundle adjustment's problem: every keyframe and ``point_ids`` (default: every point),
+    the first keyframe fixed."""
     kf_ids = sorted(slam_map.keyframes)
-    point_ids = sorted(slam_map.points)
+    point_ids = sorted(slam_map.points) if point_ids is None else point_ids
     if len(kf_ids) < 2 or not point_ids:
         return None
     fixed = np.arange(len(kf_ids)) == 0
     return window_problem(slam_map, kf_ids, point_ids, fixed, scale_factors, K), kf_ids, point_ids
 
 
-def adjust_whole_map(slam_map: Map, scale_factors: np.ndarray, K: np.ndarray, evaluations: int) -> None:
-    """Global bundle adjustment, solved in place (the caller holds the map lock)."""
-    built = whole_map_problem(slam_map, scale_factors, K)
+def long_track_points(slam_map: Map, per_keyframe: int) -> list[int]:
+    """Ids, ascending, of the points that are among the ``per_keyframe`` most observed of at least
+    one keyframe that sees them (every point of a keyframe that has fewer).
+
+    A point seen by few keyframes is triangulated from a short, low-parallax track; its noise-
+    driven depth error does not average out, and shared by many such points it biases the poses:
+    on the rendered circle (1000 features, a keyframe every 1.5 frames, half the points seen by
+    <= 5 keyframes) the floor came out as a 0.9-degree cone and every camera tilted to match
+    (bench/README.md, fourteenth session)."""
+    kept: set[int] = set()
+    for kf in slam_map.keyframes.values():
+        ids = [int(p) for p in kf.point_ids[kf.point_ids >= 0] if int(p) in slam_map.points]
+        ids.sort(key=lambda p: -len(slam_map.points[p].observations))
+        kept.update(ids[:per_keyframe])
+    return sorted(kept)
+
+
+def adjust_whole_map(slam_map: Map, scale_factors: np.ndarray, K: np.ndarray, evaluations: int, points_per_keyframe: int = 0) -> None:
+    """Global bundle adjustment, solved in place (the caller holds the map lock). With
+    ``points_per_keyframe``, the poses are adjusted on each keyframe's longest tracks
+    (:func:`long_track_points`), then the other points alone, on the adjusted poses."""
+    if points_per_keyframe <= 0:
+        _adjust(slam_map, whole_map_problem(slam_map, scale_factors, K), scale_factors, evaluations)
+        return
+    long_tracks = long_track_points(slam_map, points_per_keyframe)
+    _adjust(slam_map, whole_map_problem(slam_map, scale_factors, K, long_tracks), scale_factors, evaluations)
+    kept = set(long_tracks)
+    others = [p for p in sorted(slam_map.points) if p not in kept]
+    built = whole_map_problem(slam_map, scale_factors, K, others)
+    if built is not None:
+        built[0].fixed[:] = True  # points only: the poses stay as the long tracks set them
+    _adjust(slam_map, built, scale_factors, evaluations)
+
+
+def _adjust(slam_map: Map, built: tuple[BundleProblem, list[int], list[int]] | None, scale_factors: np.ndarray, evaluations: int) -> None:
     if built is not None:
         problem, kf_ids, point_ids = built
         apply_solution(slam_map, problem, kf_ids, point_ids, bundle_adjust(problem, evaluations), scale_factors)

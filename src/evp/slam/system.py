@@ -149,7 +149,7 @@ class SlamSystem:
         if self.settings.final_bundle_adjustment and not self._globally_adjusted:
             self._globally_adjusted = True
             with self.map.lock:
-                adjust_whole_map(self.map, self.extractor.scale_factors, self.K, self.settings.ba_evaluations)
+                adjust_whole_map(self.map, self.extractor.scale_factors, self.K, self.settings.ba_evaluations, self.settings.final_ba_points_per_keyframe)
         stamps, poses = [], []
         with self.map.lock:
             for record in self.records:

@@ -33,13 +33,13 @@ SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 SEQUENCES = ["euroc_mh_01_easy_moving_360", "kitti_odom_06_f000-050", "davis_slider_depth", "aerial_nadir_odm_toledo_fc350"]
 
 
-def render_circle(folder: Path) -> Path:
+def render_circle(folder: Path, seed: int = 1) -> Path:
     from evp.sim.generate import generate
     from evp.sim.scenarios import SimOptions
 
     # 26 s: standing 2 s, one lap of the 2.2 m circle (~20 s), then 1.5 m over the start again,
     # so the circle closes as seed 000's did (20 s stopped 0.6 m short of the start)
-    generate("circle-indoor", SimOptions(duration_s=26.0, fps=30.0, seed=1), folder, workers=2)
+    generate("circle-indoor", SimOptions(duration_s=26.0, fps=30.0, seed=seed), folder, workers=2)
     return folder
 
 
@@ -102,13 +102,18 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--out", type=Path, default=Path("runs/bench"))
     parser.add_argument("--estimator", default="auto", choices=["auto", "slam", "klt-vo"])
-    parser.add_argument("--only", nargs="+", choices=SEQUENCES, help="just these shared sequences (no relocalisation, no circle)")
+    parser.add_argument("--only", nargs="+", choices=SEQUENCES, help="just these shared sequences (no relocalisation; no circle unless --circle-seeds)")
     parser.add_argument("--set", nargs="+", default=[], metavar="SECTION.KEY=VALUE", help="settings to change, e.g. slam.mapping=thread")
+    parser.add_argument("--circle-seeds", nargs="+", type=int, help="render the circle with these seeds (default: 1; none with --only unless given)")
     args = parser.parse_args()
+    circle_seeds = args.circle_seeds or ([] if args.only else [1])
     settings = _settings(args.estimator, args.set)
     only = f" --only {' '.join(args.only)}" if args.only else ""
     changed = f" --set {' '.join(args.set)}" if args.set else ""
-    print(f"command: python bench/run_sequences.py --out {args.out} --estimator {args.estimator}{only}{changed}  ({platform.node()}, {platform.machine()})\n")
+    seeds = f" --circle-seeds {' '.join(map(str, args.circle_seeds))}" if args.circle_seeds else ""
+    print(
+        f"command: python bench/run_sequences.py --out {args.out} --estimator {args.estimator}{only}{changed}{seeds}  ({platform.node()}, {platform.machine()})\n"
+    )
     print(TABLE_HEADER)
     for name in args.only or SEQUENCES:
         path = SHARED / name
@@ -117,18 +122,20 @@ def main() -> None:
             continue
         print(_row(name, path, settings, args.out))
         sys.stdout.flush()
-    if args.only:
-        return
     euroc = SHARED / SEQUENCES[0]
-    if euroc.exists():
+    if euroc.exists() and not args.only:
         print("\n| relocalisation after a covered lens | frames to relocalise | position vs first pass (map units) | rotation (deg) |")
         print("|---|---|---|---|")
         print(_relocalisation(euroc))
-    print()
-    with tempfile.TemporaryDirectory() as tmp:
+    if circle_seeds:
+        print()
         print(TABLE_HEADER)
-        print(_row("sim circle-indoor 640x380 (26 s, one lap)", render_circle(Path(tmp) / "circle"), settings, args.out))
-        print(_row("sim circle-indoor 640x380, VO mode", Path(tmp) / "circle", Settings(estimator="klt-vo"), args.out))
+    for seed in circle_seeds:
+        with tempfile.TemporaryDirectory() as tmp:
+            circle = render_circle(Path(tmp) / "circle", seed)
+            print(_row(f"sim circle-indoor 640x380 (26 s, one lap, seed {seed})", circle, settings, args.out), flush=True)
+            if seed == circle_seeds[0] and not args.only:
+                print(_row("sim circle-indoor 640x380, VO mode", circle, Settings(estimator="klt-vo"), args.out), flush=True)
 
 
 if __name__ == "__main__":

@@ -81,7 +81,7 @@ def long_track_points(slam_map: Map, per_keyframe: int) -> list[int]:
     (bench/README.md, fourteenth session)."""
     kept: set[int] = set()
     for kf in slam_map.keyframes.values():
-        ids = [int(p) for p in kf.point_ids[kf.point_ids >= 0] if int(p) in slam_map.points]
+        ids = kf.point_ids[kf.point_ids >= 0].tolist()  # always live points: the Map keeps them in step
         ids.sort(key=lambda p: -len(slam_map.points[p].observations))
         kept.update(ids[:per_keyframe])
     return sorted(kept)
@@ -98,10 +98,10 @@ def adjust_whole_map(slam_map: Map, scale_factors: np.ndarray, K: np.ndarray, ev
     _adjust(slam_map, whole_map_problem(slam_map, scale_factors, K, long_tracks), scale_factors, evaluations)
     kept = set(long_tracks)
     others = [p for p in sorted(slam_map.points) if p not in kept]
-    built = whole_map_problem(slam_map, scale_factors, K, others)
-    if built is not None:
-        built[0].fixed[:] = True  # points only: the poses stay as the long tracks set them
-    _adjust(slam_map, built, scale_factors, evaluations)
+    if others:
+        kf_ids = sorted(slam_map.keyframes)
+        every_pose_fixed = np.ones(len(kf_ids), bool)  # points only: the poses stay as the long tracks set them
+        _adjust(slam_map, (window_problem(slam_map, kf_ids, others, every_pose_fixed, scale_factors, K), kf_ids, others), scale_factors, evaluations)
 
 
 def _adjust(slam_map: Map, built: tuple[BundleProblem, list[int], list[int]] | None, scale_factors: np.ndarray, evaluations: int) -> None:

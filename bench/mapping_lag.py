@@ -5,7 +5,7 @@ keyframe's new points reach tracking at the next frame, its local bundle adjustm
 its lag, in the thread's order. Each trial draws its own lags from its seed, so a drifting trial
 can be replayed exactly, where a live replay's thread timing never repeats.
 
-Usage: python bench/mapping_lag.py [--trials 30] [--seconds 8] [--dataset FOLDER]
+Usage: python bench/mapping_lag.py [--trials 30] [--seconds 8] [--dataset FOLDER] [--set SECTION.KEY=VALUE ...]
 
 Per trial: keyframes, tracked frames, ATE (Sim3) of the poses answered in the map kept at the end
 (a start that tracking discarded leaves its poses out, as `evp run` does), and the largest rotation
@@ -22,10 +22,10 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from run_sequences import render_circle
+from run_sequences import render_circle, settings_with_changes
 from scipy.spatial.transform import Rotation
 
-from evp.config import OrbSettings, SlamSettings
+from evp.config import Settings
 from evp.eval.evaluate import EvaluationOptions, evaluate
 from evp.eval.metrics import Alignment
 from evp.io.registry import open_dataset
@@ -99,8 +99,8 @@ def _busy_frames_range(frames) -> tuple[int, int]:
     return least, max(least, round(MAPPING_S[1] * rate))
 
 
-def _trial(dataset, frames, seed: int) -> tuple[int, int, float, float]:
-    slam = SlamSystem(dataset.camera, OrbSettings(), SlamSettings(mapping="inline"))
+def _trial(dataset, frames, seed: int, settings: Settings) -> tuple[int, int, float, float]:
+    slam = SlamSystem(dataset.camera, settings.orb, settings.slam.model_copy(update={"mapping": "inline"}))
     slam.mapping = LaggedMapping(slam.mapping.mapper, seed, _busy_frames_range(frames))
     stamps, poses = [], []
     for frame in frames:
@@ -125,16 +125,21 @@ def main() -> None:
     parser.add_argument("--trials", type=int, default=30)
     parser.add_argument("--seconds", type=float, default=8.0)
     parser.add_argument("--dataset", type=Path, help="a sequence with ground truth (default: render the circle as bench/run_sequences.py does, seed 1)")
+    parser.add_argument("--set", nargs="+", default=[], metavar="SECTION.KEY=VALUE", help="settings to change, e.g. slam.init_min_parallax_deg=2")
     args = parser.parse_args()
+    settings = settings_with_changes("slam", args.set)
     dataset_arg = f" --dataset {args.dataset}" if args.dataset else ""
-    print(f"command: python bench/mapping_lag.py --trials {args.trials} --seconds {args.seconds:g}{dataset_arg}  ({platform.node()}, {platform.machine()})\n")
+    changed = f" --set {' '.join(args.set)}" if args.set else ""
+    print(
+        f"command: python bench/mapping_lag.py --trials {args.trials} --seconds {args.seconds:g}{dataset_arg}{changed}  ({platform.node()}, {platform.machine()})\n"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         dataset = open_dataset(args.dataset or render_circle(Path(tmp) / "circle"))
         frames = [f for f in dataset.frames() if f.timestamp - dataset.frame_times[0] <= args.seconds]
         print("| trial (seed) | keyframes at the end | tracked in the final map | ATE Sim3 (m) | largest rotation error (deg) |\n" + "|---" * 5 + "|")
         drifts, ates = [], []
         for seed in range(1, args.trials + 1):
-            keyframes, tracked, ate, drift = _trial(dataset, frames, seed)
+            keyframes, tracked, ate, drift = _trial(dataset, frames, seed, settings)
             drifts.append(drift)
             ates.append(ate)
             print(f"| {seed} | {keyframes} | {tracked}/{len(frames)} | {ate:.4f} | {drift:.1f} |", flush=True)

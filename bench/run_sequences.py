@@ -83,7 +83,7 @@ def _relocalisation(path: Path) -> str:
     return f"| {path.name} | {index + 1} | {distance:.4f} | {angle:.3f} |"
 
 
-def _settings(estimator: str, changes: list[str]) -> Settings:
+def settings_with_changes(estimator: str, changes: list[str]) -> Settings:
     """The default settings with ``SECTION.KEY=VALUE`` changes (values parsed as YAML scalars)."""
     data: dict = {"estimator": estimator}
     for change in changes:
@@ -107,7 +107,7 @@ def main() -> None:
     parser.add_argument("--circle-seeds", nargs="+", type=int, help="render the circle with these seeds (default: 1; none with --only unless given)")
     args = parser.parse_args()
     circle_seeds = args.circle_seeds or ([] if args.only else [1])
-    settings = _settings(args.estimator, args.set)
+    settings = settings_with_changes(args.estimator, args.set)
     only = f" --only {' '.join(args.only)}" if args.only else ""
     changed = f" --set {' '.join(args.set)}" if args.set else ""
     seeds = f" --circle-seeds {' '.join(map(str, args.circle_seeds))}" if args.circle_seeds else ""

@@ -226,6 +226,7 @@ def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: 
         "frames_dropped": len(result.dropped),
         "tracked_frames": len(trajectory),
         "tracked_fraction": len(trajectory) / max(1, dataset.num_frames),
+        "tracked_live_frames": len(result.tracked),  # answered with a pose as they came (SLAM's start back-filled later is not)
         "init_frame": result.init_frame,
         "skipped": result.skipped,
     }

@@ -66,6 +66,27 @@ def test_noise_free_tracking_has_near_zero_error(circle, tmp_path):
     assert f"element vertex {len(slam.map.points)}" in (tmp_path / "map.ply").read_text()
 
 
+@pytest.mark.parametrize("backfill", [300, 0])
+def test_the_frames_before_a_late_start_are_localised_in_the_refined_trajectory(circle, backfill):
+    """A start that waits for 3 degrees of parallax leaves the first frames without a live pose;
+    the refined trajectory localises them against the final map (unless switched off)."""
+    dataset, frames = circle
+    settings = SlamSettings(mapping="inline", init_min_parallax_deg=3.0, start_backfill_frames=backfill)
+    slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), settings)
+    live = [slam.feed(frame).tracking_state for frame in frames]
+    slam.finish()
+    start = live.index(TrackingState.OK)
+    assert start >= 10  # the start really was late
+    stamps, poses = slam.refined_trajectory()
+    live_tracked = sum(state == TrackingState.OK for state in live)
+    if backfill:
+        assert len(stamps) >= live_tracked + 0.9 * start
+        assert stamps[0] < frames[start].timestamp
+        assert _ate(dataset, slam) < 0.02  # the same bound as the whole noise-free run's
+    else:
+        assert len(stamps) == live_tracked + 1  # and the initial reference: the first keyframe
+
+
 def test_relocalises_after_a_forced_loss_without_resetting_the_map(circle):
     dataset, frames = circle
     slam = _system(dataset)

@@ -7,13 +7,14 @@ reference keyframe), tracking of the local map (points of covisible keyframes) a
 optimisation; when lost, relocalisation against the keyframes (the map is never reset). Frame
 poses are stored relative to their reference keyframe, so the final trajectory follows the
 keyframes refined by bundle adjustment (as ORB-SLAM saves it), while the live answer is the pose
-known at that moment.
+known at that moment. Frames fed before initialisation are localised against the final map
+for the refined trajectory too (``slam.start_backfill_frames``).
 """
 
 from __future__ import annotations
 
 import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass
 from itertools import chain
 from pathlib import Path
@@ -85,6 +86,7 @@ class SlamSystem:
         self.records: list[_FrameRecord] = []
         self.reset_counter = 0  # bumped on relocalisation and restart (a discontinuity for consumers)
         self._init_reference: _InitReference | None = None
+        self._before_start: deque[tuple[int, Features]] = deque(maxlen=self.settings.start_backfill_frames)  # (record index, features)
         self._last: _TrackedFrame | None = None
         self._velocity: np.ndarray | None = None  # motion between the last two tracked frames
         self._velocity_dt = 0.0  # their time apart (s)
@@ -110,6 +112,8 @@ class SlamSystem:
         with self.map.lock:
             if self.state == TrackingState.NOT_INITIALIZED:
                 T_cw = self._initialise(frame, features)
+                if T_cw is None:
+                    self._before_start.append((len(self.records), features))  # this frame's record comes next
             elif self.state == TrackingState.LOST:
                 T_cw = self._relocalise(frame.timestamp, features)
             else:
@@ -145,11 +149,15 @@ class SlamSystem:
 
         The first call after a run (``slam.final_bundle_adjustment``) adjusts the whole map once:
         local bundle adjustment left each keyframe as its window saw it, and a closed loop was
-        adjusted when it closed, not with what came after (seconds; offline runs ask for it)."""
+        adjusted when it closed, not with what came after (seconds; offline runs ask for it).
+        Then the frames fed before initialisation are localised in that map. Both belong to the
+        end of a run: call it after :meth:`finish`."""
         if self.settings.final_bundle_adjustment and not self._globally_adjusted:
             self._globally_adjusted = True
             with self.map.lock:
                 adjust_whole_map(self.map, self.extractor.scale_factors, self.K, self.settings.ba_evaluations, self.settings.final_ba_points_per_keyframe)
+        with self.map.lock:
+            self._localise_frames_before_start()
         stamps, poses = [], []
         with self.map.lock:
             for record in self.records:
@@ -161,6 +169,43 @@ class SlamSystem:
                 stamps.append(record.timestamp)
                 poses.append(se3_inverse(record.T_frame_ref @ T_ref))
         return np.array(stamps), np.array(poses).reshape(-1, 4, 4)
+
+    def _localise_frames_before_start(self) -> None:
+        """Give a pose to the frames that came while the parallax to the initial reference grew
+        (a hovering start can take seconds). They are tracked outward in time from the earliest
+        keyframe, each from the one localised before it with the constant-velocity model and the
+        local map, falling back to relocalisation against that keyframe; each record then follows
+        its reference keyframe like any tracked frame's."""
+        waiting = [(index, features) for index, features in self._before_start if self.records[index].state == TrackingState.NOT_INITIALIZED]
+        self._before_start.clear()
+        if not waiting or not self.map.keyframes:
+            return
+        anchor = min(self.map.keyframes.values(), key=lambda kf: kf.timestamp)
+        later = [item for item in waiting if self.records[item[0]].timestamp > anchor.timestamp]
+        earlier = [item for item in reversed(waiting) if self.records[item[0]].timestamp < anchor.timestamp]
+        for sweep in (later, earlier):
+            behind = [_TrackedFrame(anchor.timestamp, anchor.features, anchor.T_cw.copy(), anchor.point_ids.copy())]
+            for index, features in sweep:
+                record = self.records[index]
+                located = self._follow_sweep(behind, features, anchor)
+                if located is None:
+                    continue
+                behind = [behind[-1], _TrackedFrame(record.timestamp, features, located[0], located[1])]
+                reference = self.map.keyframes[self._reference_kf]  # set by the local-map search
+                record.reference_kf, record.T_frame_ref, record.state = reference.id, located[0] @ se3_inverse(reference.T_cw), TrackingState.OK
+
+    def _follow_sweep(self, behind: list[_TrackedFrame], features: Features, anchor: KeyFrame) -> tuple[np.ndarray, np.ndarray] | None:
+        """One frame of the start's sweep: ``(T_cw, matched)`` or None."""
+        last = behind[-1]
+        T_pred = last.T_cw if len(behind) < 2 else last.T_cw @ se3_inverse(behind[0].T_cw) @ last.T_cw
+        matched = np.full(len(features), -1)
+        T_cw = self._track_from(last, T_pred, features, matched)
+        if T_cw is not None:
+            T_cw, inliers = self._track_local_map(features, matched, T_cw)
+            if inliers >= self.settings.min_tracked_inliers:
+                return T_cw, matched
+        found = self._localise(features, anchor)
+        return None if found is None else found[:2]
 
     # --- initialisation ---------------------------------------------------------------------
 
@@ -297,7 +342,11 @@ class SlamSystem:
 
     def _track_motion_model(self, timestamp: float, features: Features, matched: np.ndarray) -> np.ndarray | None:
         last = self._last
-        T_pred = self._predicted_motion(timestamp - last.timestamp) @ last.T_cw
+        return self._track_from(last, self._predicted_motion(timestamp - last.timestamp) @ last.T_cw, features, matched)
+
+    def _track_from(self, last: _TrackedFrame, T_pred: np.ndarray, features: Features, matched: np.ndarray) -> np.ndarray | None:
+        """Guided search for the points ``last`` tracked around their projection at ``T_pred``,
+        then pose optimisation."""
         rows_last = self.map.rows_with_points(last.point_ids)
         if len(rows_last) < 10:
             return None
@@ -462,7 +511,17 @@ class SlamSystem:
         return None
 
     def _relocalise_against(self, timestamp: float, features: Features, kf: KeyFrame) -> np.ndarray | None:
-        s = self.settings
+        found = self._localise(features, kf)
+        if found is None:
+            return None
+        T_cw, matched, count = found
+        self._last = _TrackedFrame(timestamp, features, T_cw, matched)
+        self._last_inliers = count
+        return T_cw
+
+    def _localise(self, features: Features, kf: KeyFrame) -> tuple[np.ndarray, np.ndarray, int] | None:
+        """Pose from scratch near a keyframe: descriptor matches to its points, PnP RANSAC, pose
+        optimisation, then the local map; ``(T_cw, matched point per feature, inliers)``."""
         rows = self.map.rows_with_points(kf.point_ids)
         if len(rows) < 15:
             return None
@@ -484,11 +543,9 @@ class SlamSystem:
         if count < 10:
             return None
         T_cw, count = self._track_local_map(features, matched, T_cw)
-        if count < s.min_relocalised_inliers:
+        if count < self.settings.min_relocalised_inliers:
             return None
-        self._last = _TrackedFrame(timestamp, features, T_cw, matched.copy())
-        self._last_inliers = count
-        return T_cw
+        return T_cw, matched, count
 
     # --- answers ----------------------------------------------------------------------------
 

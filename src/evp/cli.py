@@ -102,7 +102,7 @@ def run(
     metrics = write_outputs(result, dataset, settings, out)
     typer.echo(
         f"{dataset.name}: tracked {metrics['tracked_frames']}/{metrics['frames']} frames "
-        f"({100 * metrics['tracked_fraction']:.1f} %), first tracked frame {metrics['init_frame']}"
+        f"({100 * metrics['tracked_fraction']:.1f} %; {metrics['tracked_live_frames']} answered live, the first at frame {metrics['init_frame']})"
         + (f", {metrics['frames_dropped']} dropped by the real-time replay (x{speed:g})" if realtime else "")
     )
     if "rmse" in metrics:

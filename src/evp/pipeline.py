@@ -63,7 +63,7 @@ class RunResult:
 
     @property
     def init_frame(self) -> int | None:
-        """Index (among fed frames) of the first tracked frame."""
+        """Index (among fed frames) of the first frame answered with a pose."""
         return next((i for i, e in enumerate(self.estimates) if e.tracking_state in TRACKED_STATES), None)
 
     def final_trajectory(self) -> Trajectory:

@@ -87,6 +87,22 @@ def test_the_frames_before_a_late_start_are_localised_in_the_refined_trajectory(
         assert len(stamps) == live_tracked + 1  # and the initial reference: the first keyframe
 
 
+def test_blank_frames_before_the_start_stay_without_a_pose(circle):
+    """A covered lens while the start waits: those frames have no features to localise, the
+    others before the start still get their poses."""
+    dataset, frames = circle
+    slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline", init_min_parallax_deg=3.0))
+    blank = np.full_like(frames[0].image, 128)
+    covered = {3, 4, 5}
+    for k, frame in enumerate(frames):
+        slam.feed(Frame(frame.timestamp, blank if k in covered else frame.image, frame.index))
+    slam.finish()
+    stamps, _ = slam.refined_trajectory()
+    answered = {int(np.argmin(np.abs(dataset.frame_times - t))) for t in stamps}
+    assert not answered & covered
+    assert set(range(8)) - covered <= answered
+
+
 def test_relocalises_after_a_forced_loss_without_resetting_the_map(circle):
     dataset, frames = circle
     slam = _system(dataset)

@@ -174,8 +174,8 @@ class SlamSystem:
         """Give a pose to the frames that came while the parallax to the initial reference grew
         (a hovering start can take seconds). They are tracked outward in time from the earliest
         keyframe, each from the one localised before it with the constant-velocity model and the
-        local map, falling back to relocalisation against that keyframe; each record then follows
-        its reference keyframe like any tracked frame's."""
+        local map, falling back to relocalisation against that keyframe. Tracking's state (reference keyframe,
+        last frame, velocity) is left alone."""
         waiting = [(index, features) for index, features in self._before_start if self.records[index].state == TrackingState.NOT_INITIALIZED]
         self._before_start.clear()
         if not waiting or not self.map.keyframes:
@@ -191,8 +191,8 @@ class SlamSystem:
                 if located is None:
                     continue
                 behind = [behind[-1], _TrackedFrame(record.timestamp, features, located[0], located[1])]
-                reference = self.map.keyframes[self._reference_kf]  # set by the local-map search
-                record.reference_kf, record.T_frame_ref, record.state = reference.id, located[0] @ se3_inverse(reference.T_cw), TrackingState.OK
+                # the map is final: any keyframe can carry the pose
+                record.reference_kf, record.T_frame_ref, record.state = anchor.id, located[0] @ se3_inverse(anchor.T_cw), TrackingState.OK
 
     def _follow_sweep(self, behind: list[_TrackedFrame], features: Features, anchor: KeyFrame) -> tuple[np.ndarray, np.ndarray] | None:
         """One frame of the start's sweep: ``(T_cw, matched)`` or None."""
@@ -201,7 +201,7 @@ class SlamSystem:
         matched = np.full(len(features), -1)
         T_cw = self._track_from(last, T_pred, features, matched)
         if T_cw is not None:
-            T_cw, inliers = self._track_local_map(features, matched, T_cw)
+            T_cw, inliers, _ = self._track_local_map(features, matched, T_cw)
             if inliers >= self.settings.min_tracked_inliers:
                 return T_cw, matched
         found = self._localise(features, anchor)
@@ -296,7 +296,9 @@ class SlamSystem:
             matched[:] = -1
             T_cw = self._track_reference_keyframe(features, matched)
         if T_cw is not None:
-            T_cw, inliers = self._track_local_map(features, matched, T_cw)
+            T_cw, inliers, reference = self._track_local_map(features, matched, T_cw)
+            if reference is not None:
+                self._reference_kf = reference
             needed = self.settings.min_relocalised_inliers if self._frame_count - self._last_reloc_frame < 30 else self.settings.min_tracked_inliers
             if inliers < needed:
                 T_cw = None
@@ -405,12 +407,13 @@ class SlamSystem:
         return T_cw if inliers >= 10 else None
 
     def _local_keyframes(self, matched: np.ndarray) -> list[int]:
+        """Keyframes sharing the frame's matched points, most shared first, then their best
+        covisible neighbours."""
         points = self.map.points
         votes = Counter(chain.from_iterable(points[p].observations for p in matched[matched >= 0].tolist() if p in points))
         if not votes:
             return []
         first = sorted(votes, key=lambda k: -votes[k])[:40]
-        self._reference_kf = first[0]
         local = list(first)
         seen = set(local)
         for kf_id in first:
@@ -436,8 +439,11 @@ class SlamSystem:
         wanted[matched[matched >= 0]] = False
         return np.flatnonzero(wanted)
 
-    def _track_local_map(self, features: Features, matched: np.ndarray, T_cw: np.ndarray) -> tuple[np.ndarray, int]:
-        ids = self._unmatched_local_points(self._local_keyframes(matched), matched)
+    def _track_local_map(self, features: Features, matched: np.ndarray, T_cw: np.ndarray) -> tuple[np.ndarray, int, int | None]:
+        """``(T_cw, inliers, the keyframe sharing most points with the frame)`` (ORB-SLAM's
+        reference keyframe; None without matches)."""
+        local = self._local_keyframes(matched)
+        ids = self._unmatched_local_points(local, matched)
         projection = project_points(self.map, ids, T_cw, self.extractor, self.K, self.bounds)
         if projection is not None:
             candidates = ids[projection.rows]
@@ -460,7 +466,7 @@ class SlamSystem:
             point = self.map.points.get(int(point_id))
             if point is not None:
                 point.found += 1
-        return T_cw, inliers
+        return T_cw, inliers, (local[0] if local else None)
 
     # --- keyframes --------------------------------------------------------------------------
 
@@ -542,7 +548,7 @@ class SlamSystem:
         T_cw, count = self._optimise(features, matched, T_cw)
         if count < 10:
             return None
-        T_cw, count = self._track_local_map(features, matched, T_cw)
+        T_cw, count, _ = self._track_local_map(features, matched, T_cw)
         if count < self.settings.min_relocalised_inliers:
             return None
         return T_cw, matched, count

@@ -23,10 +23,9 @@ def test_sample_run_tracks_and_is_accurate(tmp_path):
     dataset = open_dataset(SAMPLE)
     result = run_dataset(dataset, make_estimator(dataset.camera, Settings()))
     metrics = write_outputs(result, dataset, Settings(), tmp_path)
-    # the slider moved ~1 m: working monocular SLAM keeps the Sim3-aligned error within a few
-    # percent of the path; a broken one is off by tens of centimetres
-    assert metrics["tracked_fraction"] >= 0.8
-    assert metrics["rmse"] < 0.05 * metrics["reference_path_length_m"]
+    # the SLAM issue's target for this sequence, with its 5 % margin (measured 0.0086 m, 87/87)
+    assert metrics["tracked_fraction"] >= 0.9
+    assert metrics["rmse"] <= 0.01 * 1.05
     assert metrics["init_frame"] <= 10
     assert metrics["loop_closures"] == []  # a slider's back-and-forth stays covisible: nothing to close
     # trajectory.tum is the globally adjusted map's, trajectory_live.tum the poses as answered

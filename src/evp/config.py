@@ -97,6 +97,11 @@ class SlamSettings(_Section):
     keyframe_max_frames: int = Field(30, ge=1, description="a keyframe at least this often (frames) when tracking is weak")
     keyframe_ref_ratio: float = Field(0.9, gt=0, lt=1, description="a keyframe when tracked points fall below this share of the reference keyframe's")
     covisible_keyframes: int = Field(10, ge=2, description="neighbours used to triangulate new points")
+    new_point_min_parallax_deg: float = Field(
+        2.0,
+        gt=0,
+        description="parallax a new map point needs between two keyframes (ORB-SLAM: 1.1); a keyframe's tilt error moves a point's depth by about that error over the parallax, so at 1.1 a 1-degree error on a nadir floor put points off the floor that tracking then followed",
+    )
     local_ba_keyframes: int = Field(8, ge=2, description="keyframes optimised by local bundle adjustment")
     ba_evaluations: int = Field(6, ge=1, description="solver evaluations per outlier round")
     keyframe_redundancy: float = Field(0.9, gt=0, le=1, description="a keyframe whose points this share is seen by 3 others is culled")

@@ -17,6 +17,7 @@ from evp.io.trajectory import Trajectory
 from evp.sim.generate import EPOCH_S, generate
 from evp.sim.scenarios import SimOptions, build_scenario
 from evp.sim.world import Renderer
+from evp.slam.local_mapping import LocalMapper
 from evp.slam.loop_closing import GraphCorrection
 from evp.slam.map import Map
 from evp.slam.system import SlamSystem
@@ -64,6 +65,33 @@ def test_noise_free_tracking_has_near_zero_error(circle, tmp_path):
     assert np.allclose(loaded.points[next(iter(loaded.points))].position, slam.map.points[next(iter(loaded.points))].position)
     slam.map.write_ply(tmp_path / "map.ply")
     assert f"element vertex {len(slam.map.points)}" in (tmp_path / "map.ply").read_text()
+
+
+@pytest.mark.parametrize("min_parallax_deg", [1.1, 2.0])
+def test_new_points_are_seen_with_the_configured_parallax(circle, monkeypatch, min_parallax_deg):
+    """A keyframe's tilt error moves a new point's depth by about that error over its parallax:
+    the mapper triangulates only pairs of rays at least ``new_point_min_parallax_deg`` apart."""
+    dataset, frames = circle
+    parallaxes: list[float] = []
+    triangulate_with = LocalMapper._triangulate_with
+
+    def recording(self, kf, nb, *args):
+        before = len(self.recent_points)
+        triangulate_with(self, kf, nb, *args)
+        for point_id in self.recent_points[before:]:
+            X = self.map.points[point_id].position
+            a, b = X - kf.centre, X - nb.centre
+            parallaxes.append(np.degrees(np.arccos(a @ b / np.linalg.norm(a) / np.linalg.norm(b))))
+
+    monkeypatch.setattr(LocalMapper, "_triangulate_with", recording)
+    slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline", new_point_min_parallax_deg=min_parallax_deg))
+    for frame in frames[:80]:
+        slam.feed(frame)
+    slam.finish()
+    assert len(parallaxes) > 200
+    assert min(parallaxes) >= min_parallax_deg - 1e-6
+    if min_parallax_deg < 2.0:  # the walk's close keyframes do offer smaller parallaxes
+        assert sum(p < 2.0 for p in parallaxes) > 20
 
 
 @pytest.mark.parametrize("backfill", [300, 0])

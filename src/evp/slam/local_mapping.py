@@ -47,6 +47,7 @@ class LocalMapper:
         self.bounds = undistorted_bounds(extractor)
         self.adjuster = adjuster or LocalAdjustment()  # tracking may interrupt its local windows
         self.recent_points: list[int] = []
+        self._min_parallax_cos = float(np.cos(np.radians(settings.new_point_min_parallax_deg)))
         self.keyframes_waiting: Callable[[], bool] = lambda: False
         self.loop_closer = LoopCloser(slam_map, extractor, settings) if settings.loop_closing else None
 
@@ -175,7 +176,9 @@ class LocalMapper:
         keep = rotation_consistent(fa.angle[free_a][rows], fb.angle[free_b][cols])
         ia, ib = free_a[rows[keep]], free_b[cols[keep]]
         points = triangulate(kf.T_cw, nb.T_cw, fa.normalised[ia], fb.normalised[ib])
-        good, _ = check_points(points, kf.T_cw, nb.T_cw, fa.normalised[ia], fb.normalised[ib], fx, sigma2[fa.octave[ia]], sigma2[fb.octave[ib]])
+        good, _ = check_points(
+            points, kf.T_cw, nb.T_cw, fa.normalised[ia], fb.normalised[ib], fx, sigma2[fa.octave[ia]], sigma2[fb.octave[ib]], self._min_parallax_cos
+        )
         # scale consistency: distance ratio agrees with the octave ratio
         da = np.linalg.norm(points - kf.centre, axis=1)
         db = np.linalg.norm(points - nb.centre, axis=1)

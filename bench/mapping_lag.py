@@ -110,14 +110,21 @@ def _trial(dataset, frames, seed: int, settings: Settings) -> tuple[int, int, fl
         elif estimate.tracking_state in (TrackingState.OK, TrackingState.RELOCALIZED):
             stamps.append(frame.timestamp)
             poses.append(estimate.T_world_cam)
-    stamps, poses = np.array(stamps), np.array(poses)
+    ate, drift = ate_and_rotation_drift(dataset, np.array(stamps), np.array(poses))
+    return len(slam.map.keyframes), len(stamps), ate, drift
+
+
+def ate_and_rotation_drift(dataset, stamps: np.ndarray, poses: np.ndarray) -> tuple[float, float]:
+    """ATE (Sim3) of these poses and their largest rotation error (degrees) since the camera
+    starts moving: the relative rotation from the first pose after ``MOVING_AFTER_S``, estimate
+    against truth, so no alignment enters it."""
     truth = dataset.ground_truth
     ate = evaluate(truth, Trajectory.from_poses(poses, stamps), EvaluationOptions(Alignment.SIM3, max_diff_s=0.01)).summary()["rmse"]
     true_rotations = Rotation.from_quat(truth.quats_xyzw[np.searchsorted(truth.timestamps, stamps - 1e-6)])
     estimated = Rotation.from_matrix(poses[:, :3, :3])
-    first = min(int(np.searchsorted(stamps - frames[0].timestamp, MOVING_AFTER_S)), len(stamps) - 1)  # a late start: its first frame
+    first = min(int(np.searchsorted(stamps - dataset.frame_times[0], MOVING_AFTER_S)), len(stamps) - 1)  # a late start: its first frame
     error = (true_rotations[first].inv() * true_rotations).inv() * (estimated[first].inv() * estimated)
-    return len(slam.map.keyframes), len(stamps), ate, float(np.degrees(error[first:].magnitude()).max())
+    return ate, float(np.degrees(error[first:].magnitude()).max())
 
 
 def main() -> None:

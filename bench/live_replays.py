@@ -18,28 +18,19 @@ import platform
 import tempfile
 from pathlib import Path
 
-import numpy as np
-from mapping_lag import DRIFT_DEG, ate_and_rotation_drift
+from mapping_lag import drift_of_final_map_poses, drift_summary
 from run_sequences import render_circle, settings_with_changes
 
 from evp.io.registry import open_dataset
 from evp.pipeline import run_dataset
 from evp.run_setup import camera_for, make_estimator
-from evp.types import TrackingState
 
 
 def _replay(dataset, settings) -> tuple[int, int, int, float, float]:
     estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
     result = run_dataset(dataset, estimator, realtime_speed=1.0)
-    stamps, poses = [], []
-    for estimate in result.estimates:
-        if estimate.tracking_state == TrackingState.NOT_INITIALIZED:
-            stamps, poses = [], []  # a start tracking discarded: its poses were in another frame
-        elif estimate.tracking_state in (TrackingState.OK, TrackingState.RELOCALIZED):
-            stamps.append(estimate.timestamp)
-            poses.append(estimate.T_world_cam)
-    ate, drift = ate_and_rotation_drift(dataset, np.array(stamps), np.array(poses))
-    return len(stamps), len(result.dropped), len(estimator.map.keyframes), ate, drift
+    answered, ate, drift = drift_of_final_map_poses(dataset, result.estimates)
+    return answered, len(result.dropped), len(estimator.map.keyframes), ate, drift
 
 
 def main() -> None:
@@ -61,11 +52,7 @@ def main() -> None:
             drifts.append(drift)
             ates.append(ate)
             print(f"| {trial} | {answered}/{dataset.num_frames} | {dropped} | {keyframes} | {ate:.4f} | {drift:.1f} |", flush=True)
-    drifted = sum(d > DRIFT_DEG for d in drifts)
-    print(
-        f"\n{drifted} of {args.trials} replays drifted (rotation error over {DRIFT_DEG:g} deg); rotation error median {np.median(drifts):.1f}, "
-        f"largest {max(drifts):.1f} deg; ATE median {np.median(ates):.4f} m"
-    )
+    print(drift_summary(drifts, ates, "replays"))
 
 
 if __name__ == "__main__":

@@ -32,7 +32,7 @@ from evp.io.registry import open_dataset
 from evp.io.trajectory import Trajectory
 from evp.slam.local_mapping import LocalMapper, NewKeyFrame
 from evp.slam.system import SlamSystem
-from evp.types import TrackingState
+from evp.types import PoseEstimate, TrackingState
 
 MOVING_AFTER_S = 1.5  # the rendered circle stands for 2 s
 MAPPING_S = (0.100, 0.233)  # the mapping thread's time per keyframe on the live circle, this machine
@@ -102,29 +102,39 @@ def _busy_frames_range(frames) -> tuple[int, int]:
 def _trial(dataset, frames, seed: int, settings: Settings) -> tuple[int, int, float, float]:
     slam = SlamSystem(dataset.camera, settings.orb, settings.slam.model_copy(update={"mapping": "inline"}))
     slam.mapping = LaggedMapping(slam.mapping.mapper, seed, _busy_frames_range(frames))
+    tracked, ate, drift = drift_of_final_map_poses(dataset, [slam.feed(frame) for frame in frames])
+    return len(slam.map.keyframes), tracked, ate, drift
+
+
+def drift_of_final_map_poses(dataset, estimates: list[PoseEstimate]) -> tuple[int, float, float]:
+    """``(poses, ATE, largest rotation error)`` of the poses answered in the map kept at the end
+    (a start that tracking discarded leaves its poses out, as `evp run` does). ATE is Sim3; the
+    rotation error (degrees) is the relative rotation from the first pose after
+    ``MOVING_AFTER_S``, estimate against truth, so no alignment enters it."""
     stamps, poses = [], []
-    for frame in frames:
-        estimate = slam.feed(frame)
+    for estimate in estimates:
         if estimate.tracking_state == TrackingState.NOT_INITIALIZED:
             stamps, poses = [], []  # a start tracking discarded: its poses were in another frame
         elif estimate.tracking_state in (TrackingState.OK, TrackingState.RELOCALIZED):
-            stamps.append(frame.timestamp)
+            stamps.append(estimate.timestamp)
             poses.append(estimate.T_world_cam)
-    ate, drift = ate_and_rotation_drift(dataset, np.array(stamps), np.array(poses))
-    return len(slam.map.keyframes), len(stamps), ate, drift
-
-
-def ate_and_rotation_drift(dataset, stamps: np.ndarray, poses: np.ndarray) -> tuple[float, float]:
-    """ATE (Sim3) of these poses and their largest rotation error (degrees) since the camera
-    starts moving: the relative rotation from the first pose after ``MOVING_AFTER_S``, estimate
-    against truth, so no alignment enters it."""
+    stamps, poses = np.array(stamps), np.array(poses)
     truth = dataset.ground_truth
     ate = evaluate(truth, Trajectory.from_poses(poses, stamps), EvaluationOptions(Alignment.SIM3, max_diff_s=0.01)).summary()["rmse"]
     true_rotations = Rotation.from_quat(truth.quats_xyzw[np.searchsorted(truth.timestamps, stamps - 1e-6)])
     estimated = Rotation.from_matrix(poses[:, :3, :3])
     first = min(int(np.searchsorted(stamps - dataset.frame_times[0], MOVING_AFTER_S)), len(stamps) - 1)  # a late start: its first frame
     error = (true_rotations[first].inv() * true_rotations).inv() * (estimated[first].inv() * estimated)
-    return ate, float(np.degrees(error[first:].magnitude()).max())
+    return len(stamps), ate, float(np.degrees(error[first:].magnitude()).max())
+
+
+def drift_summary(drifts: list[float], ates: list[float], runs: str) -> str:
+    """The line under a table of trials: how many drifted past ``DRIFT_DEG``, and the spreads."""
+    drifted = sum(d > DRIFT_DEG for d in drifts)
+    return (
+        f"\n{drifted} of {len(drifts)} {runs} drifted (rotation error over {DRIFT_DEG:g} deg); rotation error median {np.median(drifts):.1f}, "
+        f"mean {np.mean(drifts):.1f}, largest {max(drifts):.1f} deg; ATE median {np.median(ates):.4f} m, mean {np.mean(ates):.4f} m"
+    )
 
 
 def main() -> None:
@@ -150,11 +160,7 @@ def main() -> None:
             drifts.append(drift)
             ates.append(ate)
             print(f"| {seed} | {keyframes} | {tracked}/{len(frames)} | {ate:.4f} | {drift:.1f} |", flush=True)
-    drifted = sum(d > DRIFT_DEG for d in drifts)
-    print(
-        f"\n{drifted} of {args.trials} trials drifted (rotation error over {DRIFT_DEG:g} deg); rotation error mean {np.mean(drifts):.1f}, "
-        f"largest {max(drifts):.1f} deg; ATE median {np.median(ates):.4f} m, mean {np.mean(ates):.4f} m"
-    )
+    print(drift_summary(drifts, ates, "trials"))
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ from evp.geometry.transforms import nearest_rotation
 CHI2_1DOF = 3.841  # 95 % for a point-to-line distance
 CHI2_2DOF = 5.991  # 95 % for a point-to-point distance
 HUBER_DELTA = np.sqrt(CHI2_2DOF)  # robust kernel width on whitened reprojection errors (ORB-SLAM's)
-NEW_POINT_PARALLAX_COS = 0.9998  # ~1.1 deg: a point triangulated from two keyframes
+NEW_POINT_PARALLAX_COS = 0.9998  # ~1.1 deg: ORB-SLAM's parallax for a point from two keyframes
 INITIAL_POINT_PARALLAX_COS = 0.99998  # ~0.36 deg: a point of the initial map (ORB-SLAM's CheckRT)
 
 
@@ -32,9 +32,9 @@ def check_points(
     x1: np.ndarray,
     x2: np.ndarray,
     focal: float,
-    sigma2_1: np.ndarray | float = 1.0,
-    sigma2_2: np.ndarray | float = 1.0,
-    min_parallax_cos: float = NEW_POINT_PARALLAX_COS,
+    sigma2_1: np.ndarray | float,
+    sigma2_2: np.ndarray | float,
+    min_parallax_cos: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Mask of points in front of both cameras, reprojecting within chi-square bounds, seen with
     enough parallax; and the cosine of each point's parallax angle."""
@@ -122,7 +122,8 @@ def _best_motion(
         return None
     # Points are kept down to ORB-SLAM's initial parallax limit (its CheckRT, on the RANSAC model):
     # at first they are all tracking has; lower-parallax points are directions, not positions.
-    # Enough of them must have the parallax later triangulation needs, or initialisation waits.
+    # Enough of them must have ORB-SLAM's new-point parallax, or initialisation waits (the mapper's
+    # own limit, slam.new_point_min_parallax_deg, is 2: a start at 3 degrees has those points anyway).
     if (good & (cos < NEW_POINT_PARALLAX_COS)).sum() < min_triangulated:
         return None
     good &= check_points(points, T1, T2, x1, x2, focal, 4.0, 4.0, INITIAL_POINT_PARALLAX_COS)[0]

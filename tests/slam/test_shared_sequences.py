@@ -55,7 +55,12 @@ def test_mapping_worker_thread_on_real_images(euroc_start, tmp_path):
     start = states.index(TrackingState.OK)  # 3 degrees of parallax: 1.5 s in
     assert start <= 40 and states[start:].count(TrackingState.OK) >= 0.95 * (len(frames) - start)
     stamps, _ = slam.refined_trajectory()
-    assert len(stamps) >= 0.95 * len(frames)  # the frames before the start too
+    refined = set(stamps.tolist())
+    assert all(frame.timestamp in refined for frame in frames[start:])
+    # the frames before the start too, swept back from the first keyframe against the final map;
+    # with mapping in its thread that map, and so how far back the sweep reaches, varies with
+    # timing: under load 0-10 of the 31 earliest frames went unlocalised over 20 runs
+    assert sum(frame.timestamp in refined for frame in frames[:start]) >= start // 2
     assert len(slam.mapping_ms) >= 5 and slam.mapping.max_queue <= 2
     slam.map.save(tmp_path / "map.npz")
     loaded = Map.load(tmp_path / "map.npz", slam.extractor.scale_factors)

@@ -23,7 +23,7 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-from mapping_lag import drift_of_final_map_poses, drift_summary
+from mapping_lag import drift_of_final_map_poses, print_drift_table
 from run_sequences import render_circle, settings_with_changes
 
 from evp.io.registry import open_dataset
@@ -46,15 +46,16 @@ def _spin() -> None:
 @contextmanager
 def _competing_process(enabled: bool):
     """A process that keeps one core busy while the replays run (nothing when not enabled)."""
-    competitor = multiprocessing.Process(target=_spin, daemon=True) if enabled else None
-    if competitor is not None:
-        competitor.start()
+    if not enabled:
+        yield
+        return
+    competitor = multiprocessing.Process(target=_spin, daemon=True)
+    competitor.start()
     try:
         yield
     finally:
-        if competitor is not None:
-            competitor.terminate()
-            competitor.join()
+        competitor.terminate()
+        competitor.join()
 
 
 def main() -> None:
@@ -70,15 +71,14 @@ def main() -> None:
     print(f"command: python bench/live_replays.py --trials {args.trials}{dataset_arg}{changed}  ({platform.node()}, {platform.machine()})\n")
     with tempfile.TemporaryDirectory() as tmp:
         dataset = open_dataset(args.dataset or render_circle(Path(tmp) / "circle"))
-        print("| replay | answered live | dropped | keyframes at the end | ATE Sim3 (m) | largest rotation error (deg) |\n" + "|---" * 6 + "|")
-        drifts, ates = [], []
-        for trial in range(1, args.trials + 1):
-            with _competing_process(args.contend):
-                answered, dropped, keyframes, ate, drift = _replay(dataset, settings)
-            drifts.append(drift)
-            ates.append(ate)
-            print(f"| {trial} | {answered}/{dataset.num_frames} | {dropped} | {keyframes} | {ate:.4f} | {drift:.1f} |", flush=True)
-    print(drift_summary(drifts, ates, "replays"))
+
+        def replays():
+            for trial in range(1, args.trials + 1):
+                with _competing_process(args.contend):
+                    answered, dropped, keyframes, ate, drift = _replay(dataset, settings)
+                yield [str(trial), f"{answered}/{dataset.num_frames}", str(dropped), str(keyframes)], ate, drift
+
+        print_drift_table(["replay", "answered live", "dropped", "keyframes at the end"], replays(), "replays")
 
 
 if __name__ == "__main__":

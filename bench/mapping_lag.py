@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import platform
 import tempfile
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -128,10 +129,18 @@ def drift_of_final_map_poses(dataset, estimates: list[PoseEstimate]) -> tuple[in
     return len(stamps), ate, float(np.degrees(error[first:].magnitude()).max())
 
 
-def drift_summary(drifts: list[float], ates: list[float], runs: str) -> str:
-    """The line under a table of trials: how many drifted past ``DRIFT_DEG``, and the spreads."""
+def print_drift_table(columns: list[str], trials: Iterable[tuple[list[str], float, float]], runs: str) -> None:
+    """A table of trials, a row as each comes (its cells, then ATE and largest rotation error, the
+    table's last two columns), and the line under it: how many drifted past ``DRIFT_DEG``, and the
+    spreads."""
+    print(f"| {' | '.join(columns)} | ATE Sim3 (m) | largest rotation error (deg) |\n" + "|---" * (len(columns) + 2) + "|")
+    drifts, ates = [], []
+    for cells, ate, drift in trials:
+        drifts.append(drift)
+        ates.append(ate)
+        print(f"| {' | '.join(cells)} | {ate:.4f} | {drift:.1f} |", flush=True)
     drifted = sum(d > DRIFT_DEG for d in drifts)
-    return (
+    print(
         f"\n{drifted} of {len(drifts)} {runs} drifted (rotation error over {DRIFT_DEG:g} deg); rotation error median {np.median(drifts):.1f}, "
         f"mean {np.mean(drifts):.1f}, largest {max(drifts):.1f} deg; ATE median {np.median(ates):.4f} m, mean {np.mean(ates):.4f} m"
     )
@@ -153,14 +162,13 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         dataset = open_dataset(args.dataset or render_circle(Path(tmp) / "circle"))
         frames = [f for f in dataset.frames() if f.timestamp - dataset.frame_times[0] <= args.seconds]
-        print("| trial (seed) | keyframes at the end | tracked in the final map | ATE Sim3 (m) | largest rotation error (deg) |\n" + "|---" * 5 + "|")
-        drifts, ates = [], []
-        for seed in range(1, args.trials + 1):
-            keyframes, tracked, ate, drift = _trial(dataset, frames, seed, settings)
-            drifts.append(drift)
-            ates.append(ate)
-            print(f"| {seed} | {keyframes} | {tracked}/{len(frames)} | {ate:.4f} | {drift:.1f} |", flush=True)
-    print(drift_summary(drifts, ates, "trials"))
+
+        def trials():
+            for seed in range(1, args.trials + 1):
+                keyframes, tracked, ate, drift = _trial(dataset, frames, seed, settings)
+                yield [str(seed), str(keyframes), f"{tracked}/{len(frames)}"], ate, drift
+
+        print_drift_table(["trial (seed)", "keyframes at the end", "tracked in the final map"], trials(), "trials")
 
 
 if __name__ == "__main__":

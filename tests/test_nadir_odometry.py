@@ -93,5 +93,6 @@ def test_real_survey_meets_the_target(tmp_path):
     assert metrics["tracked_fraction"] >= 0.9
     assert metrics["rmse"] <= 5.0 * 1.05
     assert (tmp_path / "trajectory_live.tum").is_file()
-    lens = read_camera(tmp_path / "camera_estimated.yaml")  # the nominal EXIF camera plus the estimated k1
-    assert lens.fx == dataset.camera.fx and lens.k1 != 0.0
+    lens = read_camera(tmp_path / "camera_estimated.yaml")  # the EXIF camera self-calibrated: focal length, k1, k2
+    # a barrel-distorting lens; the focal length lies on a long ridge of the cost (0.78 of EXIF's here)
+    assert 0.7 < lens.fx / dataset.camera.fx < 1.1 and lens.k1 < 0.0 and lens.k2 != 0.0

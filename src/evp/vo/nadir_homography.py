@@ -53,7 +53,7 @@ class NadirHomographyOdometry:
         self._matcher = cv2.FlannBasedMatcher({"algorithm": 1, "trees": 4}, {"checks": 64})  # KD-trees: SIFT matching in ms
         self._placed: list[_Placed] = []
         self._matches: list[tuple[int, int, np.ndarray]] = []  # (photo, earlier photo, keypoint pairs)
-        self.lens: CameraModel | None = None  # the lens with the k1 the survey adjustment estimated
+        self.lens: CameraModel | None = None  # the lens the survey adjustment self-calibrated (focal length, k1, k2)
         self._adjusted: np.ndarray | None = None  # poses of the last adjustment (it takes seconds)
         self._lost = False
 
@@ -142,7 +142,7 @@ class NadirHomographyOdometry:
 
     def refined_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         """Timestamps and camera-to-world poses of the placed photos after adjusting them all
-        together (``survey_adjustment``; the lens's k1 too when the camera has no lens model).
+        together (``survey_adjustment``; the lens too when the camera has no lens model).
         Seconds for a survey of dozens of photos, so the pipeline asks for it once, offline."""
         stamps = np.array([p.timestamp for p in self._placed])
         poses = np.array([p.T_world_cam for p in self._placed]).reshape(-1, 4, 4)

@@ -99,18 +99,14 @@ def _adjust(camera: CameraModel, poses_wc: np.ndarray, tracks: SurveyTracks) -> 
     return np.linalg.inv(poses_cw), float(np.sum(np.minimum(chi2, CHI2_2DOF)))
 
 
-def _lens(camera: CameraModel, x: np.ndarray) -> CameraModel:
-    """The camera with focal lengths scaled by exp(x[0]) and radial coefficients x[1], x[2]."""
+def _lens_and_poses(camera: CameraModel, poses_wc: np.ndarray, x: np.ndarray) -> tuple[CameraModel, np.ndarray]:
+    """The camera with focal lengths scaled by exp(x[0]) and radial coefficients x[1], x[2], and
+    the poses with heights over the ground (z = 0) scaled as the focal length is, so that each
+    photo still covers the same ground."""
     scale = float(np.exp(x[0]))
-    return replace(camera, fx=camera.fx * scale, fy=camera.fy * scale, k1=float(x[1]), k2=float(x[2]))
-
-
-def _heights_for(poses_wc: np.ndarray, focal_ratio: float) -> np.ndarray:
-    """The poses with heights over the ground (z = 0) scaled as the focal length is: each photo
-    then still covers the same ground."""
     scaled = poses_wc.copy()
-    scaled[:, 2, 3] *= focal_ratio
-    return scaled
+    scaled[:, 2, 3] *= scale
+    return replace(camera, fx=camera.fx * scale, fy=camera.fy * scale, k1=float(x[1]), k2=float(x[2])), scaled
 
 
 def adjust_survey(camera: CameraModel, poses_wc: np.ndarray, tracks: SurveyTracks) -> tuple[np.ndarray, CameraModel]:
@@ -124,9 +120,10 @@ def adjust_survey(camera: CameraModel, poses_wc: np.ndarray, tracks: SurveyTrack
         return _adjust(camera, poses_wc, tracks)[0], camera
 
     def cost(x: np.ndarray) -> float:
-        return _adjust(_lens(camera, x), _heights_for(poses_wc, float(np.exp(x[0]))), tracks)[1]
+        return _adjust(*_lens_and_poses(camera, poses_wc, x), tracks)[1]
 
     simplex = np.vstack([np.zeros(3), np.diag(LENS_STEPS)])
     search = minimize(cost, np.zeros(3), method="Nelder-Mead", options={"initial_simplex": simplex, "maxfev": LENS_EVALUATIONS, "xatol": 1e-4, "fatol": 1.0})
-    lens = replace(_lens(camera, search.x), name=f"{camera.name or 'camera'}+self-calibrated")
-    return _adjust(lens, _heights_for(poses_wc, float(np.exp(search.x[0]))), tracks)[0], lens
+    lens, poses = _lens_and_poses(camera, poses_wc, search.x)
+    lens = replace(lens, name=f"{camera.name or 'camera'}+self-calibrated")
+    return _adjust(lens, poses, tracks)[0], lens

@@ -21,7 +21,8 @@ from run_sequences import SHARED, render_circle
 
 from evp.config import Settings
 from evp.io.registry import open_dataset
-from evp.pipeline import run_dataset, write_outputs
+from evp.io.run_outputs import write_outputs
+from evp.pipeline import run_dataset
 from evp.run_setup import camera_for, make_estimator
 
 SEQUENCES = ["euroc_mh_01_easy_moving_360", "kitti_odom_06_f000-050", "davis_slider_depth"]

@@ -26,7 +26,8 @@ from pydantic import ValidationError
 
 from evp.config import Settings
 from evp.io.registry import open_dataset
-from evp.pipeline import run_dataset, write_outputs
+from evp.io.run_outputs import write_outputs
+from evp.pipeline import run_dataset
 from evp.run_setup import camera_for, make_estimator
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"

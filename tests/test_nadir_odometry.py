@@ -9,7 +9,8 @@ from scipy.spatial.transform import Rotation
 from evp.calib.camera_files import read_camera
 from evp.config import Settings
 from evp.io.registry import open_dataset
-from evp.pipeline import run_dataset, write_outputs
+from evp.io.run_outputs import write_outputs
+from evp.pipeline import run_dataset
 from evp.run_setup import camera_for, make_estimator
 from evp.types import CameraModel, Frame, TrackingState
 from evp.vo.nadir_homography import NadirHomographyOdometry

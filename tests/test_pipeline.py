@@ -10,11 +10,13 @@ import numpy as np
 import pytest
 
 from evp.config import Settings
-from evp.errors import DatasetError
+from evp.errors import DatasetError, FrameError
+from evp.estimator import Estimator
 from evp.io.registry import open_dataset
-from evp.pipeline import run_dataset, write_outputs
+from evp.io.run_outputs import write_outputs
+from evp.pipeline import Pipeline, RealTime, RunResult, Sink, run_dataset
 from evp.run_setup import make_estimator
-from evp.types import TrackingState
+from evp.types import Frame, PoseEstimate, TrackingState
 from tests.conftest import SAMPLE
 from tests.io import builders
 
@@ -80,3 +82,108 @@ def test_run_without_calibration_is_a_clear_error(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "evp.cli", "run", str(video), "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and "no calibration" in proc.stderr
     shutil.rmtree(root)
+
+
+class _Slider(Estimator):
+    """A real, exact estimator for the pipeline's contract: the camera slides 1 m along x per
+    second; an all-black image is refused as a frame it cannot use."""
+
+    def __init__(self):
+        self.calls: list[str] = []
+
+    def feed(self, frame: Frame) -> PoseEstimate:
+        self.calls.append(f"feed {frame.index}")
+        if not frame.image.any():
+            raise FrameError(f"frame {frame.index}: blank")
+        pose = np.eye(4)
+        pose[0, 3] = frame.timestamp
+        return PoseEstimate(frame.timestamp, pose, TrackingState.OK, 100)
+
+    def settle(self) -> None:
+        self.calls.append("settle")
+
+    def finish(self) -> None:
+        self.calls.append("finish")
+
+
+class _Log(Sink):
+    def __init__(self, calls: list[str]):
+        self.calls = calls
+
+    def on_estimate(self, frame, estimate, elapsed_ms):
+        self.calls.append(f"sink {frame.index} x={estimate.T_world_cam[0, 3]:g}")
+
+    def on_skip(self, frame, reason):
+        self.calls.append(f"skip {reason}")
+
+    def on_drop(self, frame):
+        self.calls.append(f"drop {frame.index}")
+
+    def on_finish(self, estimator):
+        self.calls.append("sink finish")
+
+
+class _Lift:
+    """A stage: raises every estimate by 1 m (as a navigation filter would change it)."""
+
+    def process(self, frame, estimate):
+        pose = estimate.T_world_cam.copy()
+        pose[2, 3] += 1.0
+        return PoseEstimate(estimate.timestamp, pose, estimate.tracking_state, estimate.quality)
+
+
+def _frames(stamps, blank=()):
+    return [Frame(t, np.zeros((4, 4), np.uint8) if k in blank else np.full((4, 4), 9, np.uint8), k) for k, t in enumerate(stamps)]
+
+
+def test_pipeline_order_is_feed_stages_sinks_settle_then_finish():
+    estimator = _Slider()
+    result = RunResult(estimator)
+    Pipeline(estimator, [_Log(estimator.calls), result], [_Lift()]).run(_frames([0.0, 0.5]))
+    assert estimator.calls == ["feed 0", "sink 0 x=0", "settle", "feed 1", "sink 1 x=0.5", "settle", "finish", "sink finish"]
+    assert [e.T_world_cam[2, 3] for e in result.estimates] == [1.0, 1.0]  # sinks see the stages' output
+    assert len(result.tracking_ms) == 2
+
+
+def test_pipeline_skips_refused_frames_and_time_going_backwards():
+    estimator = _Slider()
+    result = RunResult(estimator)
+    Pipeline(estimator, [result]).run(_frames([0.0, 0.1, 0.1, 0.05, 0.3], blank={1}))
+    # a refused frame does not advance time: the next one with the same stamp is still used
+    assert [e.timestamp for e in result.estimates] == [0.0, 0.1, 0.3]
+    assert result.skipped == ["frame 1: blank", "frame 3: timestamp 0.05 does not increase"]
+
+
+def test_real_time_pacing_reports_drops_to_the_sinks():
+    class Clock:
+        now = 0.0
+
+        def __call__(self):
+            return self.now
+
+        def sleep(self, seconds):
+            self.now += seconds
+
+    clock = Clock()
+
+    class Slow(_Slider):
+        def feed(self, frame):
+            clock.now += 0.25  # each frame takes 250 ms: two of every three at 10 Hz are overtaken
+            return super().feed(frame)
+
+    estimator = Slow()
+    result = RunResult(estimator)
+    Pipeline(estimator, [result], pacing=RealTime(1.0, clock, clock.sleep)).run(_frames([0.1 * k for k in range(10)]))
+    assert len(result.estimates) + len(result.dropped) == 10
+    assert result.dropped and set(result.dropped).isdisjoint(int(round(e.timestamp * 10)) for e in result.estimates)
+
+
+def test_run_result_uses_the_estimators_refined_trajectory():
+    class Refined(_Slider):
+        def refined_trajectory(self):
+            return np.array([0.0]), np.eye(4)[None]
+
+    estimator = Refined()
+    result = RunResult(estimator)
+    Pipeline(estimator, [result]).run(_frames([0.0, 1.0]))
+    assert len(result.trajectory()) == 2 and len(result.final_trajectory()) == 1

@@ -1,32 +1,55 @@
-"""What every pose estimator offers the pipeline, the CLI and the base station."""
+"""What every pose estimator offers the pipeline, the CLI and the base station.
+
+A base class rather than a bare protocol: each estimator states what it offers by overriding a
+method, and inherits a documented default for the rest, so the pipeline never probes types or
+attributes (``hasattr``/``isinstance``) to learn what an estimator can do.
+"""
 
 from __future__ import annotations
 
-from typing import Protocol, runtime_checkable
+from typing import Any
 
 import numpy as np
 
 from evp.types import CameraModel, Frame, PoseEstimate
 
 
-class Estimator(Protocol):
+class Estimator:
+    """A pose estimator fed one frame at a time, in time order."""
+
+    reset_counter: int = 0  # bumped at each discontinuity (relocalisation, restart) consumers must know of
+    lens: CameraModel | None = None  # the lens model it estimated from the images (a survey's self-calibration); None if none
+
     def feed(self, frame: Frame) -> PoseEstimate:
         """Estimate the camera pose for one frame (frames must arrive in time order)."""
-        ...
+        raise NotImplementedError
 
+    def settle(self) -> None:
+        """Finish the work the last frame started (mapping its keyframe) now, after its answer is
+        out; the next :meth:`feed` does it first otherwise. Default: nothing to do."""
 
-@runtime_checkable
-class Refining(Protocol):
-    """An estimator that can improve its whole trajectory once every frame is in (offline runs:
-    SLAM through its bundle-adjusted keyframes, a photo survey adjusted as a whole)."""
+    def finish(self) -> None:
+        """End of the stream: wait for background work and release what the estimator started."""
 
-    def refined_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
-        """Timestamps (N,) and ``T_world_cam`` (N, 4, 4) of the frames it localised."""
-        ...
+    def refined_trajectory(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Timestamps (N,) and ``T_world_cam`` (N, 4, 4) of the frames it localised, improved once
+        every frame is in (SLAM through its bundle-adjusted keyframes, a photo survey adjusted as a
+        whole); None when it offers nothing better than its live answers. Call after :meth:`finish`."""
+        return None
 
+    def keyframe_trajectory(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Timestamps and ``T_world_cam`` of its keyframes; None for an estimator without a map."""
+        return None
 
-@runtime_checkable
-class SelfCalibrating(Protocol):
-    """An estimator that estimates part of the lens model from the images themselves."""
+    def sparse_map(self) -> Any | None:
+        """The map it built (``evp.slam.map.Map``), for map files; None for an estimator without one."""
+        return None
 
-    lens: CameraModel | None  # the lens model it estimated (after ``refined_trajectory`` for a survey); None if none
+    def timing(self) -> dict[str, Any]:
+        """Its own timing figures: lists of per-frame or per-keyframe milliseconds, named as in
+        timing.json (``tracking_ms`` when it can time tracking apart from background work)."""
+        return {}
+
+    def report(self) -> dict[str, Any]:
+        """Events worth writing into a run's metrics (closed loops...), JSON-ready."""
+        return {}

@@ -1,46 +1,157 @@
-"""One pipeline: a dataset's frames through an estimator into a trajectory, metrics and plots.
+"""One pipeline: frames from a source, through an estimator and stages, into sinks.
 
-The CLI (``evp run``) drives it offline; the base station will drive the same estimator live.
+Every entry point drives it: ``evp run`` and the benches (a dataset, as fast as possible or in
+real time), the station's per-session estimator process (live frames, newest first), ``evp
+replay`` (a recorded session) and the tests. Nothing else feeds an estimator. The pipeline is
+synchronous; where frames come from another thread or process, the runtime feeds its source.
+
+Pacing policies:
+- as fast as possible (offline runs): every frame, one after the other;
+- real time (:class:`RealTime`): frames released at their recorded pace, the estimator always
+  gets the newest one, frames overtaken while it was busy are dropped, as on the base station;
+- live: the source itself only ever offers the newest frame (the runtime's estimator process
+  keeps one waiting slot), so the pipeline takes them as they come.
 """
 
 from __future__ import annotations
 
-import json
 import time
-from collections.abc import Callable, Iterable, Iterator
-from dataclasses import asdict, dataclass, field
-from pathlib import Path
-from typing import TYPE_CHECKING
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
 
 import cv2
 import numpy as np
 
-from evp.config import Settings, write_settings
-from evp.errors import DatasetError, EvaluationError, EvpError
-from evp.estimator import Estimator, Refining, SelfCalibrating
+from evp.errors import EvpError, UsageError
+from evp.estimator import Estimator
 from evp.io.dataset import Dataset
-from evp.io.trajectory import Trajectory, write_trajectory
-from evp.types import Frame, PoseEstimate, TrackingState
+from evp.trajectory import Trajectory
+from evp.types import Frame, PoseEstimate
 
-if TYPE_CHECKING:
-    from evp.slam.system import SlamSystem
 
-TRACKED_STATES = (TrackingState.OK, TrackingState.RELOCALIZED)
+class Stage(Protocol):
+    """A step after the estimator (a navigation filter...): an estimate in, an estimate out."""
+
+    def process(self, frame: Frame, estimate: PoseEstimate) -> PoseEstimate: ...
+
+
+class Sink:
+    """Where the pipeline's results go (a recorder, files, a socket back to the vehicle, a
+    progress bar). Each method has a no-op default; a sink overrides what it uses."""
+
+    def on_estimate(self, frame: Frame, estimate: PoseEstimate, elapsed_ms: float) -> None:
+        """A frame's answer, after the stages; ``elapsed_ms`` is the estimator's time on it."""
+
+    def on_skip(self, frame: Frame | None, reason: str) -> None:
+        """A frame the estimator could not use (undecodable, rejected, time going backwards)."""
+
+    def on_drop(self, frame: Frame) -> None:
+        """A frame the pacing had no time for (real time: overtaken by a newer one)."""
+
+    def on_finish(self, estimator: Estimator) -> None:
+        """The stream ended and the estimator finished its work."""
+
+
+class Pacing(Protocol):
+    def __call__(self, frames: Iterable[Frame], on_drop: Callable[[Frame], None]) -> Iterable[Frame]: ...
+
+
+def as_fast_as_possible(frames: Iterable[Frame], on_drop: Callable[[Frame], None]) -> Iterable[Frame]:
+    """Every frame, as soon as the estimator is ready for it (offline runs; live sources that
+    already hand over only the newest frame)."""
+    return frames
+
+
+@dataclass(frozen=True)
+class RealTime:
+    """Frames at their recorded pace times ``speed``, newest first (see :func:`paced_frames`)."""
+
+    speed: float = 1.0
+    clock: Callable[[], float] = time.perf_counter
+    sleep: Callable[[float], None] = time.sleep
+
+    def __call__(self, frames: Iterable[Frame], on_drop: Callable[[Frame], None]) -> Iterator[Frame]:
+        return paced_frames(frames, self.speed, on_drop, self.clock, self.sleep)
+
+
+class Pipeline:
+    """source -> estimator -> stages -> sinks, with a pacing policy."""
+
+    def __init__(self, estimator: Estimator, sinks: Sequence[Sink] = (), stages: Sequence[Stage] = (), pacing: Pacing = as_fast_as_possible):
+        self.estimator = estimator
+        self.sinks = list(sinks)
+        self.stages = list(stages)
+        self.pacing = pacing
+        self._last_stamp = -np.inf
+
+    def run(self, frames: Iterable[Frame]) -> None:
+        """Feed every frame the pacing releases, then finish the estimator."""
+        for frame in self.pacing(frames, self._drop):
+            self.process(frame)
+        self.finish()
+
+    def process(self, frame: Frame) -> PoseEstimate | None:
+        """One frame through the estimator, the stages and the sinks; a frame the estimator
+        rejects (``EvpError``) or whose time does not increase is skipped and reported, never fatal.
+        The estimator settles (maps the frame's keyframe) after the sinks have the answer."""
+        if frame.timestamp <= self._last_stamp:
+            self.skip(frame, f"frame {frame.index}: timestamp {frame.timestamp!r} does not increase")
+            return None
+        start = time.perf_counter()
+        try:
+            estimate = self.estimator.feed(frame)
+        except EvpError as exc:
+            self.skip(frame, str(exc))
+            return None
+        elapsed_ms = (time.perf_counter() - start) * 1000.0
+        self._last_stamp = frame.timestamp
+        for stage in self.stages:
+            estimate = stage.process(frame, estimate)
+        for sink in self.sinks:
+            sink.on_estimate(frame, estimate, elapsed_ms)
+        self.estimator.settle()
+        return estimate
+
+    def skip(self, frame: Frame | None, reason: str) -> None:
+        """Report a frame the source or the estimator could not use."""
+        for sink in self.sinks:
+            sink.on_skip(frame, reason)
+
+    def finish(self) -> None:
+        self.estimator.finish()
+        for sink in self.sinks:
+            sink.on_finish(self.estimator)
+
+    def _drop(self, frame: Frame) -> None:
+        for sink in self.sinks:
+            sink.on_drop(frame)
 
 
 @dataclass
-class RunResult:
+class RunResult(Sink):
+    """A sink that keeps everything a run answered, for the files, metrics and plots after it."""
+
+    estimator: Estimator
     estimates: list[PoseEstimate] = field(default_factory=list)
-    tracking_ms: list[float] = field(default_factory=list)
+    tracking_ms: list[float] = field(default_factory=list)  # the estimator's time per frame, as the pipeline measured it
     skipped: list[str] = field(default_factory=list)  # why frames were not used
     dropped: list[int] = field(default_factory=list)  # frames a real-time replay had no time for
-    reference_orb_ms: list[float] = field(default_factory=list)  # OpenCV ORB on the same frames
-    slam: SlamSystem | None = None  # the engine, when the estimator builds a map
-    refiner: Refining | None = None  # the estimator, when it can refine its trajectory at the end
+    reference_orb_ms: list[float] = field(default_factory=list)  # OpenCV's ORB on the same frames, when timed
+
+    def on_estimate(self, frame: Frame, estimate: PoseEstimate, elapsed_ms: float) -> None:
+        self.estimates.append(estimate)
+        self.tracking_ms.append(elapsed_ms)
+
+    def on_skip(self, frame: Frame | None, reason: str) -> None:
+        self.skipped.append(reason)
+
+    def on_drop(self, frame: Frame) -> None:
+        self.dropped.append(frame.index)
 
     @property
     def tracked(self) -> list[PoseEstimate]:
-        return [e for e in self.estimates if e.tracking_state in TRACKED_STATES]
+        return [e for e in self.estimates if e.tracking_state.tracked]
 
     def trajectory(self) -> Trajectory:
         tracked = self.tracked
@@ -52,7 +163,7 @@ class RunResult:
         scale after a loss, so each piece is its own visual frame."""
         pieces: list[list[PoseEstimate]] = [[]]
         for estimate in self.estimates:
-            if estimate.tracking_state in TRACKED_STATES:
+            if estimate.tracking_state.tracked:
                 pieces[-1].append(estimate)
             elif pieces[-1]:
                 pieces.append([])
@@ -64,15 +175,55 @@ class RunResult:
     @property
     def init_frame(self) -> int | None:
         """Index (among fed frames) of the first frame answered with a pose."""
-        return next((i for i, e in enumerate(self.estimates) if e.tracking_state in TRACKED_STATES), None)
+        return next((i for i, e in enumerate(self.estimates) if e.tracking_state.tracked), None)
 
     def final_trajectory(self) -> Trajectory:
         """The estimator's refined trajectory when it offers one (SLAM through the final
         bundle-adjusted keyframes, a photo survey adjusted as a whole); else the live one."""
-        if self.refiner is None:
+        refined = self.estimator.refined_trajectory()
+        if refined is None:
             return self.trajectory()
-        stamps, poses = self.refiner.refined_trajectory()
+        stamps, poses = refined
         return Trajectory.from_poses(poses, stamps, "estimate")
+
+
+class Progress(Sink):
+    """Calls ``advance(1)`` for every frame the pipeline is done with (answered, skipped or dropped)."""
+
+    def __init__(self, advance: Callable[[int], None]):
+        self.advance = advance
+
+    def on_estimate(self, frame: Frame, estimate: PoseEstimate, elapsed_ms: float) -> None:
+        self.advance(1)
+
+    def on_skip(self, frame: Frame | None, reason: str) -> None:
+        if frame is not None:
+            self.advance(1)
+
+    def on_drop(self, frame: Frame) -> None:
+        self.advance(1)
+
+
+class ReferenceOrbTimer(Sink):
+    """Times OpenCV's own ORB (same feature count) on each answered frame, outside the
+    estimator's time, so that speed can be reported as a ratio measured in one run."""
+
+    def __init__(self, features: int):
+        self._orb = cv2.ORB_create(features)
+        self.ms: list[float] = []
+
+    def on_estimate(self, frame: Frame, estimate: PoseEstimate, elapsed_ms: float) -> None:
+        grey = frame.image if frame.image.ndim == 2 else cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY)
+        start = time.perf_counter()
+        self._orb.detectAndCompute(grey, None)
+        self.ms.append((time.perf_counter() - start) * 1000.0)
+
+
+def run_frames(estimator: Estimator, frames: Iterable[Frame], sinks: Sequence[Sink] = (), pacing: Pacing = as_fast_as_possible) -> RunResult:
+    """Frames already in hand (a test's, a bench's trial) through the pipeline; the recorded answers."""
+    result = RunResult(estimator)
+    Pipeline(estimator, [result, *sinks], pacing=pacing).run(frames)
+    return result
 
 
 def run_dataset(
@@ -81,50 +232,18 @@ def run_dataset(
     progress: Callable[[int], None] | None = None,
     reference_orb_features: int | None = None,
     realtime_speed: float | None = None,
+    sinks: Sequence[Sink] = (),
 ) -> RunResult:
-    """Feed every frame; undecodable or rejected frames are skipped and reported, never fatal.
-
-    With ``reference_orb_features``, OpenCV's own ORB (that many features) is timed on each frame
-    too, outside the tracking time, so that speed can be reported as a ratio measured in one run.
-    With ``realtime_speed``, frames arrive at their recorded pace times that factor and the
-    estimator always gets the newest one, as on the base station: frames that arrive while it is
-    busy are dropped (``RunResult.dropped``).
-    """
-    from evp.slam.system import SlamSystem
-
-    result = RunResult(slam=estimator if isinstance(estimator, SlamSystem) else None, refiner=estimator if isinstance(estimator, Refining) else None)
-    reference_orb = cv2.ORB_create(reference_orb_features) if reference_orb_features else None
-    errors: list[DatasetError] = []
-    frames = dataset.frames(errors)
-    if realtime_speed is not None:
-
-        def drop(frame: Frame) -> None:
-            result.dropped.append(frame.index)
-            if progress:
-                progress(1)
-
-        frames = paced_frames(frames, realtime_speed, drop)
-    last_stamp = -np.inf
-    for frame in frames:
-        if frame.timestamp <= last_stamp:
-            result.skipped.append(f"frame {frame.index}: timestamp {frame.timestamp!r} does not increase")
-        else:
-            start = time.perf_counter()
-            try:
-                estimate = estimator.feed(frame)
-            except EvpError as exc:
-                result.skipped.append(str(exc))
-            else:
-                result.tracking_ms.append((time.perf_counter() - start) * 1000.0)
-                result.estimates.append(estimate)
-                last_stamp = frame.timestamp
-                if reference_orb is not None:
-                    result.reference_orb_ms.append(_time_reference_orb(reference_orb, frame.image))
-        if progress:
-            progress(1)
-    if result.slam is not None:
-        result.slam.finish()
-    result.skipped += [str(e) for e in errors]
+    """A dataset through the pipeline: every frame as fast as possible, or with
+    ``realtime_speed`` at its recorded pace times that factor, newest first (``RunResult.dropped``).
+    Undecodable or rejected frames are skipped and reported, never fatal. With
+    ``reference_orb_features`` OpenCV's ORB is timed on each frame too (``RunResult.reference_orb_ms``)."""
+    timer = ReferenceOrbTimer(reference_orb_features) if reference_orb_features else None
+    extra: list[Sink] = [*sinks, *([timer] if timer else []), *([Progress(progress)] if progress else [])]
+    errors: list[EvpError] = []  # frames the reader could not decode, in the order met
+    result = run_frames(estimator, dataset.frames(errors), extra, as_fast_as_possible if realtime_speed is None else RealTime(realtime_speed))
+    result.skipped += [str(error) for error in errors]
+    result.reference_orb_ms = timer.ms if timer is not None else []
     return result
 
 
@@ -139,7 +258,7 @@ def paced_frames(
     released frame, and a frame overtaken by a newer one before it was requested goes to
     ``on_drop``. A frame whose stamp does not increase is passed on at once (the caller rejects it)."""
     if speed <= 0:
-        raise ValueError(f"real-time speed must be positive, not {speed}")
+        raise UsageError(f"real-time speed must be positive, not {speed}")
     waiting: Frame | None = None
     start_wall = start_stamp = 0.0
     for frame in frames:
@@ -158,91 +277,3 @@ def paced_frames(
         waiting = frame
     if waiting is not None:
         yield waiting
-
-
-def _time_reference_orb(orb: cv2.ORB, image: np.ndarray) -> float:
-    grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    start = time.perf_counter()
-    orb.detectAndCompute(grey, None)
-    return (time.perf_counter() - start) * 1000.0
-
-
-def _timing(result: RunResult) -> dict:
-    def stats(values: list[float]) -> dict:
-        array = np.array(values) if values else np.zeros(1)
-        return {"median": float(np.median(array)), "p95": float(np.percentile(array, 95))}
-
-    # SLAM: tracking time without the keyframe mapping a call may run first (inline mapping)
-    tracking = result.slam.tracking_ms if result.slam is not None else result.tracking_ms
-    tracking_stats = stats(tracking)
-    timing: dict = {"tracking_ms": tracking, "tracking_ms_median": tracking_stats["median"], "tracking_ms_p95": tracking_stats["p95"]}
-    if result.reference_orb_ms:
-        timing["opencv_orb_ms"] = result.reference_orb_ms
-        timing["opencv_orb_ms_median"] = stats(result.reference_orb_ms)["median"]
-        timing["tracking_to_orb_ratio"] = timing["tracking_ms_median"] / max(timing["opencv_orb_ms_median"], 1e-9)
-    if result.slam is not None:
-        timing["orb_extraction_ms"] = result.slam.extraction_ms
-        timing["mapping_ms_per_keyframe"] = result.slam.mapping_ms
-        timing["mapping_ms_median"] = stats(result.slam.mapping_ms)["median"]
-        timing["keyframe_queue_max"] = result.slam.mapping.max_queue
-    return timing
-
-
-def _max_time_difference(dataset: Dataset) -> float:
-    """Half a frame period: each estimate matches at most its own ground-truth stamp."""
-    if dataset.num_frames < 2:
-        return 0.01
-    return float(0.5 * np.median(np.diff(dataset.frame_times)))
-
-
-def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: Path) -> dict:
-    """trajectory.tum, states.csv, timing.json, metrics.json (+ plots) when ground truth exists,
-    settings.yaml; trajectory_live.tum (the poses as answered live) when trajectory.tum holds a
-    refined trajectory; camera_estimated.yaml (usable as camera.calibration_file) when the
-    estimator estimated the lens; for SLAM also keyframes.tum, map.ply and map.npz."""
-    out.mkdir(parents=True, exist_ok=True)
-    write_settings(settings, out)
-    trajectory = result.final_trajectory()
-    write_trajectory(out / "trajectory.tum", trajectory)
-    if result.refiner is not None:
-        write_trajectory(out / "trajectory_live.tum", result.trajectory())
-    if isinstance(result.refiner, SelfCalibrating) and result.refiner.lens is not None:
-        from evp.calib.camera_files import write_opencv_yaml
-
-        write_opencv_yaml(out / "camera_estimated.yaml", result.refiner.lens, text={"estimated_by": type(result.refiner).__name__})
-    if result.slam is not None:
-        stamps, poses = result.slam.keyframe_trajectory()
-        write_trajectory(out / "keyframes.tum", Trajectory.from_poses(poses, stamps, "keyframes"))
-        result.slam.map.write_ply(out / "map.ply")
-        result.slam.map.save(out / "map.npz")
-    with (out / "states.csv").open("w") as handle:
-        handle.write("timestamp,state,quality\n")
-        for e in result.estimates:
-            handle.write(f"{e.timestamp!r},{e.tracking_state.value},{e.quality}\n")
-    (out / "timing.json").write_text(json.dumps(_timing(result), indent=2))
-    metrics: dict = {
-        "frames": dataset.num_frames,
-        "frames_fed": len(result.estimates),
-        "frames_dropped": len(result.dropped),
-        "tracked_frames": len(trajectory),
-        "tracked_fraction": len(trajectory) / max(1, dataset.num_frames),
-        "tracked_live_frames": len(result.tracked),  # answered with a pose as they came (SLAM's start back-filled later is not)
-        "init_frame": result.init_frame,
-        "skipped": result.skipped,
-    }
-    if result.slam is not None:
-        metrics["loop_closures"] = [asdict(closure) for closure in result.slam.loop_closures]
-    if dataset.ground_truth is not None and len(trajectory) >= 3:
-        from evp.eval.evaluate import EvaluationOptions, evaluate
-        from evp.eval.metrics import Alignment
-        from evp.eval.report import write_report
-
-        try:
-            evaluation = evaluate(dataset.ground_truth, trajectory, EvaluationOptions(Alignment.SIM3, max_diff_s=_max_time_difference(dataset)))
-        except EvaluationError as exc:
-            metrics["evaluation_error"] = str(exc)
-        else:
-            metrics.update(evaluation.summary())
-            write_report(evaluation, out / "plots", "ground truth", "trajectory.tum")
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    return metrics

@@ -9,7 +9,8 @@ import pytest
 
 from evp.config import OrbSettings, Settings, SlamSettings
 from evp.io.registry import open_dataset
-from evp.pipeline import run_dataset, write_outputs
+from evp.io.run_outputs import write_outputs
+from evp.pipeline import run_dataset
 from evp.run_setup import camera_for, make_estimator
 from evp.slam.map import Map
 from evp.slam.system import SlamSystem

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter, deque
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from itertools import chain
 from pathlib import Path
 
@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from evp.config import OrbSettings, SlamSettings
+from evp.estimator import Estimator
 from evp.geometry.transforms import scale_motion, se3_inverse
 from evp.geometry.two_view import initial_two_view
 from evp.slam.adjustment_process import AdjustmentProcess
@@ -67,7 +68,7 @@ class _FrameRecord:
     state: TrackingState
 
 
-class SlamSystem:
+class SlamSystem(Estimator):
     def __init__(self, camera: CameraModel, orb: OrbSettings | None = None, settings: SlamSettings | None = None):
         self.camera = camera
         self.settings = settings or SlamSettings()
@@ -143,6 +144,22 @@ class SlamSystem:
     def keyframe_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         with self.map.lock:
             return self.map.keyframe_poses()
+
+    def sparse_map(self) -> Map:
+        return self.map
+
+    def timing(self) -> dict:
+        """Tracking without the keyframe mapping a call may run first, ORB extraction, mapping
+        per keyframe and the deepest the keyframe queue got."""
+        return {
+            "tracking_ms": self.tracking_ms,
+            "orb_extraction_ms": self.extraction_ms,
+            "mapping_ms_per_keyframe": self.mapping_ms,
+            "keyframe_queue_max": self.mapping.max_queue,
+        }
+
+    def report(self) -> dict:
+        return {"loop_closures": [asdict(closure) for closure in self.loop_closures]}
 
     def refined_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         """Timestamps and ``T_world_cam`` of every tracked frame, through the final keyframe poses.

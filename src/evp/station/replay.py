@@ -8,16 +8,20 @@ estimator saw (not those dropped as stale), so the result equals the live trajec
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
+from itertools import chain, groupby
 from pathlib import Path
 
 import numpy as np
 
 from evp.errors import EvpError
+from evp.pipeline import Pipeline, Sink
+from evp.station.estimation import pose_message
 from evp.station.protocol import ENCODING_IDS, ImageMessage, Pose, ProtocolError, image_pixels
 from evp.station.recording import RAW_ROS_ENCODING, TOPIC_CAMERA_INFO, TOPIC_IMAGE_COMPRESSED, TOPIC_IMAGE_RAW, decoded_messages
 from evp.station.store import SessionStore
+from evp.types import Frame, PoseEstimate
 
 ROS_TO_RAW = {ros: ours for ours, ros in RAW_ROS_ENCODING.items()}
 
@@ -52,13 +56,55 @@ def recorded_frames(store: SessionStore, session_id: str, mcap_path: Path) -> It
         yield "frame", log_time, RecordedFrame(log_time_ns, message, bool(row["estimated"]))
 
 
-def replay(store: SessionStore, session_id: str, all_frames: bool = False, progress: Callable[[int], None] | None = None) -> list[Pose]:
-    """Poses for the recorded frames, from estimators (re)started where the live ones were."""
-    from evp.config import Settings
+class _PoseRecorder(Sink):
+    """Keeps each answer in its wire form, as the station sent it live."""
+
+    def __init__(self, estimator, poses: list[Pose]):
+        self.estimator = estimator
+        self.poses = poses
+
+    def on_estimate(self, frame: Frame, estimate: PoseEstimate, elapsed_ms: float) -> None:
+        self.poses.append(pose_message(frame.index, estimate, self.estimator.reset_counter, 0.0))
+
+
+def _decoded(frames: Iterable[RecordedFrame]) -> Iterator[Frame]:
+    """The recorded images as frames; one that does not decode is left out, as live."""
+    for item in frames:
+        try:
+            image = image_pixels(item.message)
+        except ProtocolError:
+            continue
+        yield Frame(item.message.timestamp, image, index=item.message.seq, source="stream")
+
+
+def _frames_by_start(
+    store: SessionStore, session_id: str, mcap_path: Path, starts: list, all_frames: bool, progress: Callable[[int], None] | None
+) -> Iterator[tuple[tuple, RecordedFrame]]:
+    """((start number, camera, settings) of the estimator start in force, frame) for each frame to replay; frames
+    before the first start, or before any camera, had no estimator live and are left out."""
     from evp.io.ros_messages import msg_to_camera
+
+    camera = None
+    current = None
+    start_index = -1
+    for kind, log_time, item in recorded_frames(store, session_id, mcap_path):
+        if kind == "camera":
+            camera = msg_to_camera(item)
+            continue
+        while start_index + 1 < len(starts) and starts[start_index + 1][0] <= log_time:
+            start_index += 1
+            current = (start_index, camera, starts[start_index][1]) if camera is not None else None
+        if progress:
+            progress(1)
+        if current is not None and (item.estimated_live or all_frames):
+            yield current, item
+
+
+def replay(store: SessionStore, session_id: str, all_frames: bool = False, progress: Callable[[int], None] | None = None) -> list[Pose]:
+    """Poses for the recorded frames, from estimators (re)started where the live ones were: one
+    pipeline per estimator start, fed the frames recorded until the next start."""
+    from evp.config import Settings
     from evp.run_setup import make_estimator
-    from evp.station.estimation import pose_message
-    from evp.types import Frame
 
     row = store.session(session_id)
     if row is None:
@@ -69,27 +115,11 @@ def replay(store: SessionStore, session_id: str, all_frames: bool = False, progr
     starts = [(s["t"], Settings.model_validate_json(s["data_json"])) for s in store.rows("settings", session_id) if s["source"] == "server"]
     if not starts:
         raise EvpError(f"session {session_id}: the estimator never started live; nothing to replay")
-    camera = None
-    estimator = None
-    start_index = -1
     poses: list[Pose] = []
-    for kind, log_time, item in recorded_frames(store, session_id, mcap_path):
-        if kind == "camera":
-            camera = msg_to_camera(item)
-            continue
-        while start_index + 1 < len(starts) and starts[start_index + 1][0] <= log_time:
-            start_index += 1
-            estimator = make_estimator(camera, starts[start_index][1]) if camera is not None else None
-        if progress:
-            progress(1)
-        if estimator is None or not (item.estimated_live or all_frames):
-            continue
-        try:
-            image = image_pixels(item.message)
-            estimate = estimator.feed(Frame(item.message.timestamp, image, index=item.message.seq, source="stream"))
-        except (ProtocolError, EvpError):
-            continue
-        poses.append(pose_message(item.message.seq, estimate, getattr(estimator, "reset_counter", 0), 0.0))
+    for _, run in groupby(_frames_by_start(store, session_id, mcap_path, starts, all_frames, progress), key=lambda pair: pair[0][0]):
+        (_, camera, settings), first = next(run)
+        estimator = make_estimator(camera, settings)
+        Pipeline(estimator, [_PoseRecorder(estimator, poses)]).run(_decoded(chain([first], (item for _, item in run))))
     return poses
 
 

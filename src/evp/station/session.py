@@ -18,7 +18,8 @@ from typing import Protocol
 
 import numpy as np
 
-from evp.station.estimation import EstimatorWorker, WorkerEvents
+from evp.runtime.estimator_process import EstimatorProcess, ProcessEvents
+from evp.station.estimation import worker_main
 from evp.station.protocol import (
     Bye,
     CameraConfig,
@@ -75,7 +76,7 @@ class LiveSession:
         self.recording = SessionRecording(recording_path)
         self.camera: CameraConfig | None = None
         self.estimating = estimating
-        self.worker: EstimatorWorker | None = None
+        self.worker: EstimatorProcess | None = None
         self.send: Callable[[str], None] | None = None
         self.counters = Counters()
         self.connected = False
@@ -251,8 +252,8 @@ class LiveSession:
             return
         settings_json = self.station.settings_json()
         self.store.insert("settings", session_id=self.id, t=time.time(), source="server", data_json=settings_json)
-        events = WorkerEvents(self._worker_ready, self._worker_pose, self._worker_error, self._worker_dropped, self._worker_exit)
-        self.worker = EstimatorWorker(self.camera, settings_json, events)
+        events = ProcessEvents(self._worker_ready, self._worker_pose, self._worker_error, self._worker_dropped, self._worker_exit)
+        self.worker = EstimatorProcess(worker_main, (self.camera, settings_json), events)
         self.station.on_new_map(self)
         self.reply(Status(state="starting", estimating=self.estimating, message="estimator starting"))
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from evp.estimator import Estimator
 from evp.config import VoSettings
 from evp.geometry.transforms import se3, se3_inverse
 from evp.geometry.two_view import CHI2_2DOF, check_points, triangulate
@@ -31,7 +32,7 @@ class _Keyframe:
     index: int
 
 
-class KltVisualOdometry:
+class KltVisualOdometry(Estimator):
     """``feed(frame) -> PoseEstimate``; poses are ``T_world_cam`` with the first keyframe as world."""
 
     def __init__(self, camera: CameraModel, settings: VoSettings | None = None):

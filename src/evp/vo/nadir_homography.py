@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from evp.estimator import Estimator
 from evp.geometry.transforms import se3
 from evp.types import CameraModel, Frame, PoseEstimate, TrackingState
 from evp.vo.survey_adjustment import adjust_survey, tracks_from_matches
@@ -41,7 +42,7 @@ def _apply(H: np.ndarray, points: np.ndarray) -> np.ndarray:
     return mapped[:, :2] / mapped[:, 2:3]
 
 
-class NadirHomographyOdometry:
+class NadirHomographyOdometry(Estimator):
     """``feed(frame) -> PoseEstimate``; world = the first image's ground plane in its pixels
     (x right, y up), z up, the first camera at height f."""
 

@@ -1,0 +1,105 @@
+"""The files an offline run leaves: trajectories, map, states, timing, metrics, plots, settings."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from evp.config import Settings, write_settings
+from evp.errors import EvaluationError
+from evp.io.dataset import Dataset
+from evp.io.trajectory import write_trajectory
+from evp.pipeline import RunResult
+from evp.trajectory import Trajectory
+
+
+def _stats(values: list[float]) -> dict:
+    array = np.array(values) if values else np.zeros(1)
+    return {"median": float(np.median(array)), "p95": float(np.percentile(array, 95))}
+
+
+def run_timing(result: RunResult) -> dict:
+    """timing.json: the estimator's tracking time per frame (its own figure when it times tracking
+    apart from background work, as SLAM does without its inline mapping; else the pipeline's),
+    medians, OpenCV ORB's time on the same frames and the ratio, and the estimator's own figures."""
+    own = result.estimator.timing()
+    tracking = own.get("tracking_ms", result.tracking_ms)
+    tracking_stats = _stats(tracking)
+    timing: dict = {"tracking_ms": tracking, "tracking_ms_median": tracking_stats["median"], "tracking_ms_p95": tracking_stats["p95"]}
+    if result.reference_orb_ms:
+        timing["opencv_orb_ms"] = result.reference_orb_ms
+        timing["opencv_orb_ms_median"] = _stats(result.reference_orb_ms)["median"]
+        timing["tracking_to_orb_ratio"] = timing["tracking_ms_median"] / max(timing["opencv_orb_ms_median"], 1e-9)
+    for name, value in own.items():
+        if name == "tracking_ms":
+            continue
+        timing[name] = value
+        if name == "mapping_ms_per_keyframe":
+            timing["mapping_ms_median"] = _stats(value)["median"]
+    return timing
+
+
+def _max_time_difference(dataset: Dataset) -> float:
+    """Half a frame period: each estimate matches at most its own ground-truth stamp."""
+    if dataset.num_frames < 2:
+        return 0.01
+    return float(0.5 * np.median(np.diff(dataset.frame_times)))
+
+
+def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: Path) -> dict:
+    """trajectory.tum, states.csv, timing.json, metrics.json (+ plots) when ground truth exists,
+    settings.yaml; trajectory_live.tum (the poses as answered live) when trajectory.tum holds a
+    refined trajectory; camera_estimated.yaml (usable as camera.calibration_file) when the
+    estimator estimated the lens; for an estimator with a map also keyframes.tum, map.ply and map.npz."""
+    estimator = result.estimator
+    out.mkdir(parents=True, exist_ok=True)
+    write_settings(settings, out)
+    trajectory = result.final_trajectory()
+    write_trajectory(out / "trajectory.tum", trajectory)
+    if estimator.refined_trajectory() is not None:
+        write_trajectory(out / "trajectory_live.tum", result.trajectory())
+    if estimator.lens is not None:
+        from evp.calib.camera_files import write_opencv_yaml
+
+        write_opencv_yaml(out / "camera_estimated.yaml", estimator.lens, text={"estimated_by": type(estimator).__name__})
+    keyframes = estimator.keyframe_trajectory()
+    if keyframes is not None:
+        write_trajectory(out / "keyframes.tum", Trajectory.from_poses(keyframes[1], keyframes[0], "keyframes"))
+    sparse_map = estimator.sparse_map()
+    if sparse_map is not None:
+        from evp.io.map_files import save_map, write_map_ply
+
+        write_map_ply(out / "map.ply", sparse_map)
+        save_map(out / "map.npz", sparse_map)
+    with (out / "states.csv").open("w") as handle:
+        handle.write("timestamp,state,quality\n")
+        for e in result.estimates:
+            handle.write(f"{e.timestamp!r},{e.tracking_state.value},{e.quality}\n")
+    (out / "timing.json").write_text(json.dumps(run_timing(result), indent=2))
+    metrics: dict = {
+        "frames": dataset.num_frames,
+        "frames_fed": len(result.estimates),
+        "frames_dropped": len(result.dropped),
+        "tracked_frames": len(trajectory),
+        "tracked_fraction": len(trajectory) / max(1, dataset.num_frames),
+        "tracked_live_frames": len(result.tracked),  # answered with a pose as they came (SLAM's start back-filled later is not)
+        "init_frame": result.init_frame,
+        "skipped": result.skipped,
+        **estimator.report(),
+    }
+    if dataset.ground_truth is not None and len(trajectory) >= 3:
+        from evp.eval.evaluate import EvaluationOptions, evaluate
+        from evp.eval.metrics import Alignment
+        from evp.eval.report import write_report
+
+        try:
+            evaluation = evaluate(dataset.ground_truth, trajectory, EvaluationOptions(Alignment.SIM3, max_diff_s=_max_time_difference(dataset)))
+        except EvaluationError as exc:
+            metrics["evaluation_error"] = str(exc)
+        else:
+            metrics.update(evaluation.summary())
+            write_report(evaluation, out / "plots", "ground truth", "trajectory.tum")
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    return metrics

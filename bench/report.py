@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import ast
 import json
-import re
 import subprocess
 import sys
 from pathlib import Path
@@ -107,8 +106,13 @@ def render() -> str:
 
 
 def _first_sentence(text: str) -> str:
-    match = re.match(r"(.+?[.:])(\s|$)", text)
-    return match.group(1).rstrip(":.") if match else text
+    """Up to the first full stop or colon outside brackets (the bench's one-line summary)."""
+    depth = 0
+    for i, char in enumerate(text):
+        depth += (char == "(") - (char == ")")
+        if depth == 0 and char in ".:" and (i + 1 == len(text) or text[i + 1] == " "):
+            return text[:i]
+    return text
 
 
 def main() -> None:

@@ -1,12 +1,14 @@
-"""The SLAM engine on a stream that drops frames, as the base station's link does when the
-estimator is busy (at most one frame waits; a newer one replaces it).
+"""SLAM on a stream that drops frames, as the base station's link does when the estimator is busy
+(at most one frame waits; a newer one replaces it).
+
+The sequence is fed with every 2nd, 3rd and 4th frame (each offset) and, per seed, twice in a row
+keeping each frame with the given probability (the second pass starts over: a jump back to the
+start that relocalisation must catch).
 
 Usage: python bench/dropped_frames.py [--sequence PATH] [--keep 0.5 0.3] [--seeds 6]
 
-The sequence (default: the bundled sample) is fed with every 2nd, 3rd and 4th frame (each offset)
-and, per seed, twice in a row keeping each frame with the given probability (the second pass
-starts over: a jump back to the start that relocalisation must catch). Printed: the share of the
-fed frames answered with tracking state OK, per pattern, and the mean.
+Prints per pattern the share of the fed frames answered with tracking state OK, and the mean.
+Needs no shared data (default: the bundled sample).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import platform
 from pathlib import Path
 
 import numpy as np
+from results import Results
 
 from evp.config import Settings
 from evp.io.registry import open_dataset
@@ -42,26 +45,45 @@ def _random_drops(frames: list[Frame], keep: float, seed: int) -> list[Frame]:
     return kept
 
 
+COLUMNS = [
+    ("sequence", "{sequence}"),
+    ("frames fed", "{pattern}"),
+    ("patterns", "{patterns}"),
+    ("OK share per pattern", "{shares_text}"),
+    ("mean", "{mean_share:.2f}"),
+]
+
+
+def _record(sequence: str, pattern: str, patterns: str, shares: list[float]) -> dict:
+    return {
+        "sequence": sequence,
+        "pattern": pattern,
+        "patterns": patterns,
+        "shares": shares,
+        "shares_text": " ".join(f"{s:.2f}" for s in shares),
+        "mean_share": float(np.mean(shares)),
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--sequence", type=Path, default=SAMPLE)
     parser.add_argument("--keep", type=float, nargs="+", default=[0.5, 0.3])
     parser.add_argument("--seeds", type=int, default=6)
     args = parser.parse_args()
-    print(
-        f"command: python bench/dropped_frames.py --sequence {args.sequence} --keep {' '.join(map(str, args.keep))} --seeds {args.seeds}"
-        f"  ({platform.node()}, {platform.machine()})\n"
-    )
+    command = f"python bench/dropped_frames.py --sequence {args.sequence} --keep {' '.join(map(str, args.keep))} --seeds {args.seeds}"
+    print(f"command: {command}  ({platform.node()}, {platform.machine()})\n")
+    table = Results("dropped_frames", command).table("patterns", COLUMNS, key=["sequence", "pattern"], caption="Share of the fed frames answered OK")
     dataset = open_dataset(args.sequence)
     frames = list(dataset.frames())
-    print("| frames fed | patterns | OK share per pattern | mean |")
-    print("|---|---|---|---|")
+    print(table.header())
+    sequence = args.sequence.name
     for stride in (2, 3, 4):
         shares = [_ok_share(dataset, frames[offset::stride]) for offset in range(stride)]
-        print(f"| every {stride} | {stride} offsets | {' '.join(f'{s:.2f}' for s in shares)} | {np.mean(shares):.2f} |", flush=True)
+        print(table.add(_record(sequence, f"every {stride}", f"{stride} offsets", shares)), flush=True)
     for keep in args.keep:
         shares = [_ok_share(dataset, _random_drops(frames, keep, seed)) for seed in range(1, args.seeds + 1)]
-        print(f"| {100 * keep:.0f} % at random, twice | {args.seeds} seeds | {' '.join(f'{s:.2f}' for s in shares)} | {np.mean(shares):.2f} |", flush=True)
+        print(table.add(_record(sequence, f"{100 * keep:.0f} % at random, twice", f"{args.seeds} seeds", shares)), flush=True)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,11 @@
-"""`evp eval` vs evo 1.38 on the shared reference trajectories: agreement and speed in one run.
+"""`evp eval` against evo 1.38 on the shared reference trajectories: do they agree, and which is
+faster? Both read, associate, align and compute APE and RPE in the same process, best of 3.
 
 Usage: python bench/eval_vs_evo.py
+
+Prints per trajectory pair: alignment, APE RMSE, the largest absolute difference from evo over
+APE and RPE statistics, both times and their ratio. Needs ../shared/data and evo (the test extra);
+seconds.
 """
 
 from __future__ import annotations
@@ -11,6 +16,7 @@ from pathlib import Path
 
 from evo.core import metrics, sync
 from evo.tools import file_interface
+from results import Results
 
 from evp.eval.evaluate import EvaluationOptions, evaluate
 from evp.eval.metrics import Alignment
@@ -51,15 +57,36 @@ def _timed(function, *args, repeats: int = 3):
     return best, result
 
 
+COLUMNS = [
+    ("reference / estimate", "{pair}"),
+    ("align", "{align}"),
+    ("APE RMSE (m)", "{ape_rmse_m:.6f}"),
+    ("max abs difference vs evo", "{max_difference:.1e}"),
+    ("evp time (s)", "{evp_s:.3f}"),
+    ("evo time (s)", "{evo_s:.3f}"),
+    ("evo / evp", "{evo_to_evp:.1f}x"),
+]
+
+
 def main() -> None:
     print("command: python bench/eval_vs_evo.py   (read + associate + align + APE + RPE, best of 3, same process)\n")
-    print("| reference / estimate | align | APE RMSE (m) | max abs difference vs evo | evp time (s) | evo time (s) | evo / evp |")
-    print("|---|---|---|---|---|---|---|")
+    table = Results("eval_vs_evo", "python bench/eval_vs_evo.py").table(
+        "pairs", COLUMNS, key=["pair", "align"], caption="Read, associate, align, APE and RPE; best of 3 in one process"
+    )
+    print(table.header())
     for ref, est, align in PAIRS:
         t_ours, ours = _timed(_ours, ROOT / ref, ROOT / est, align)
         t_evo, theirs = _timed(_evo, ROOT / ref, ROOT / est, align)
         diff = max(abs(ours[m][k] - theirs[m][k]) for m in ("ape", "rpe") for k in ("rmse", "mean", "median", "std", "min", "max"))
-        print(f"| {ref} / {Path(est).name} | {align} | {ours['ape']['rmse']:.6f} | {diff:.1e} | {t_ours:.3f} | {t_evo:.3f} | {t_evo / t_ours:.1f}x |")
+        record = {
+            "pair": f"{ref} / {Path(est).name}",
+            "align": align,
+            "ape_rmse_m": ours["ape"]["rmse"],
+            "max_difference": diff,
+            "evp_s": t_ours,
+            "evo_s": t_evo,
+        }
+        print(table.add({**record, "evo_to_evp": t_evo / t_ours}))
 
 
 if __name__ == "__main__":

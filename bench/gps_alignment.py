@@ -1,10 +1,20 @@
-"""Seed 002 on simulated flights shaped like its Table I, and the spoofing/jamming detector figures.
+"""Seed 002 (visual odometry aligned to GPS and barometer) on simulated flights shaped like its
+Table I, and the GPS spoofing/jamming detector's figures.
 
-Each flight is rendered (10 fps, the GPS rate the paper down-sampled its video to), run through
-EVP's visual odometry, aligned to GPS over the 70 s phase after reaching the target altitude, and
-scored against the *true* position (and against GPS, as the paper does) on the rest of the flight.
+Each flight is rendered at 10 fps (the GPS rate the paper down-sampled its video to), run
+through EVP's visual odometry, aligned to GPS over the 70 s after reaching the target altitude,
+and scored against the true position (and against GPS, as the paper does) on the rest of the
+flight. The alignment alone is also scored on a modelled visual track (truth in its own frame,
+with 0.5 % scale and heading errors); the detector on seeded flights with pull-off and jump
+spoofing, clean flights and a jamming outage.
 
-Usage: python bench/gps_alignment.py [--flights A,B,...] [--keep DIR]
+Usage: python bench/gps_alignment.py [--flights A,B,...] [--keep DIR] [--skip-rendered]
+
+Prints three tables: rendered flights (aligned share, mean and largest error against truth and
+GPS near the target altitude and overall, wall time), modelled tracks (errors, model chosen) and
+the detector (time to alarm, false alarms per hour, outage handling, each with its target).
+`--skip-rendered` leaves out the rendered flights (the slow part: minutes per flight). Needs no
+shared data.
 """
 
 from __future__ import annotations
@@ -16,6 +26,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from results import Results
 
 from evp.config import AlignmentSettings, MonitorSettings, Settings
 from evp.eval.statistics import error_statistics
@@ -34,7 +45,33 @@ from evp.sim.sensors import GpsConfig
 TABLE_I = {"A": (325, 81), "B": (356, 61), "C": (388, 31), "D": (103, 109), "E": (269, 81), "F": (192, 83), "G": (210, 30)}
 
 
-def flight_row(name: str, duration: float, altitude: float, workdir: Path) -> str:
+FLIGHT_COLUMNS = [
+    ("flight", "{flight}"),
+    ("s", "{duration_s:.0f}"),
+    ("target m", "{altitude_m:.0f}"),
+    ("m/s", "{speed_m_s:.0f}"),
+    ("aligned segment", "{aligned_percent:.0f} %"),
+    ("near: mean vs truth (m)", "{near_mean_vs_truth_m:.2f}"),
+    ("near: max vs truth", "{near_max_vs_truth_m:.2f}"),
+    ("near: mean vs GPS", "{near_mean_vs_gps_m:.2f}"),
+    ("near: max vs GPS", "{near_max_vs_gps_m:.2f}"),
+    ("all: mean vs GPS", "{all_mean_vs_gps_m:.2f}"),
+    ("all: max vs GPS", "{all_max_vs_gps_m:.2f}"),
+    ("wall s", "{wall_s:.0f}"),
+]
+MODEL_COLUMNS = [
+    ("flight", "{flight}"),
+    ("s", "{duration_s:.0f}"),
+    ("target m", "{altitude_m:.0f}"),
+    ("m/s", "{speed_m_s:.0f}"),
+    ("near: mean vs truth (m)", "{near_mean_vs_truth_m:.2f}"),
+    ("near: max vs truth (m)", "{near_max_vs_truth_m:.2f}"),
+    ("model", "{model}"),
+]
+DETECTOR_COLUMNS = [("test", "{test}"), ("result", "{result}"), ("target", "{target}")]
+
+
+def flight_record(name: str, duration: float, altitude: float, workdir: Path) -> dict:
     speed = 4.0 + (ord(name) % 5)  # 4-8 m/s, fixed per flight
     options = SimOptions(duration_s=duration, altitude_m=altitude, speed_m_s=speed, fps=10.0, relief=False, seed=ord(name))
     data = workdir / name
@@ -54,13 +91,23 @@ def flight_row(name: str, duration: float, altitude: float, workdir: Path) -> st
     vs_gps = result.summary()
     tracked = len(result.alignment.aligned) / max(1, dataset.num_frames)
     near_gps = vs_gps["near_target_altitude"] or {"mean": float("nan"), "max": float("nan")}
-    return (
-        f"| {name} | {duration:.0f} | {altitude:.0f} | {speed:.0f} | {100 * tracked:.0f} % | "
-        f"{vs_truth['mean']:.2f} | {vs_truth['max']:.2f} | {near_gps['mean']:.2f} | {near_gps['max']:.2f} | {vs_gps['mean']:.2f} | {vs_gps['max']:.2f} | {time.perf_counter() - start:.0f} |"
-    )
+    return {
+        "flight": name,
+        "duration_s": duration,
+        "altitude_m": altitude,
+        "speed_m_s": speed,
+        "aligned_percent": 100 * tracked,
+        "near_mean_vs_truth_m": vs_truth["mean"],
+        "near_max_vs_truth_m": vs_truth["max"],
+        "near_mean_vs_gps_m": near_gps["mean"],
+        "near_max_vs_gps_m": near_gps["max"],
+        "all_mean_vs_gps_m": vs_gps["mean"],
+        "all_max_vs_gps_m": vs_gps["max"],
+        "wall_s": time.perf_counter() - start,
+    }
 
 
-def model_track_row(name: str, duration: float, altitude: float, drift_fraction: float = 0.005) -> str:
+def model_track_record(name: str, duration: float, altitude: float, drift_fraction: float = 0.005) -> dict:
     """The same flight with the visual track modelled (truth in its own frame and scale, with scale
     and heading errors of ``drift_fraction``, see monitor_trials.drifting_track): the alignment's
     own accuracy."""
@@ -94,7 +141,15 @@ def model_track_row(name: str, duration: float, altitude: float, drift_fraction:
     errors = np.linalg.norm(result.aligned.positions[after, :2] - truth[after, :2], axis=1)
     near = np.abs(truth[after, 2] - altitude - 0.3) < 2.0
     stats = error_statistics(errors[near])
-    return f"| {name} | {duration:.0f} | {altitude:.0f} | {speed:.0f} | {stats['mean']:.2f} | {stats['max']:.2f} | {result.chosen['model']} |"
+    return {
+        "flight": name,
+        "duration_s": duration,
+        "altitude_m": altitude,
+        "speed_m_s": speed,
+        "near_mean_vs_truth_m": stats["mean"],
+        "near_max_vs_truth_m": stats["max"],
+        "model": result.chosen["model"],
+    }
 
 
 def main() -> None:
@@ -103,27 +158,29 @@ def main() -> None:
     parser.add_argument("--keep", type=Path, default=None)
     parser.add_argument("--skip-rendered", action="store_true", help="only the modelled-track and detector tables (fast)")
     args = parser.parse_args()
-    print(f"command: python bench/gps_alignment.py --flights {args.flights}\n")
-    print(
-        "Alignment (3d+baro, grid-searched model), errors on the part after the 70 s phase (half the time at altitude when shorter); 'near' = |z - target| < 2 m"
-    )
-    print(
-        "| flight | s | target m | m/s | aligned segment | near: mean vs truth (m) | near: max vs truth | near: mean vs GPS | near: max vs GPS | all: mean vs GPS | all: max vs GPS | wall s |"
-    )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    command = f"python bench/gps_alignment.py --flights {args.flights}" + (" --skip-rendered" if args.skip_rendered else "")
+    print(f"command: {command}\n")
+    results = Results("gps_alignment", command)
+    caption = "Alignment (3d+baro, grid-searched model), errors on the part after the 70 s phase (half the time at altitude when shorter); 'near' = |z - target| < 2 m"
+    print(caption)
+    flights = results.table("rendered", FLIGHT_COLUMNS, key=["flight"], caption=caption)
+    print(flights.header())
     workdir = args.keep or Path(tempfile.mkdtemp(prefix="evp-align-bench-"))
     for name in [] if args.skip_rendered else args.flights.split(","):
         duration, altitude = TABLE_I[name]
-        print(flight_row(name, duration, altitude, workdir), flush=True)
+        print(flights.add(flight_record(name, duration, altitude, workdir)), flush=True)
     if args.keep is None:
         shutil.rmtree(workdir)
-    print("\nAlignment alone: the visual track modelled as truth (own frame, scale) with 0.5 % scale and heading errors")
-    print("| flight | s | target m | m/s | near: mean vs truth (m) | near: max vs truth (m) | model |")
-    print("|---|---|---|---|---|---|---|")
+    caption = "Alignment alone: the visual track modelled as truth (own frame, scale) with 0.5 % scale and heading errors"
+    print(f"\n{caption}")
+    modelled = results.table("modelled", MODEL_COLUMNS, key=["flight"], caption=caption)
+    print(modelled.header())
     for name in args.flights.split(","):
         duration, altitude = TABLE_I[name]
-        print(model_track_row(name, duration, altitude), flush=True)
-    print("\nSpoofing / jamming detector (seeded flights, visual track with 0.5 % scale and heading errors, GPS 1.5 m Gauss-Markov + white)")
+        print(modelled.add(model_track_record(name, duration, altitude)), flush=True)
+    caption = "Spoofing / jamming detector (seeded flights, visual track with 0.5 % scale and heading errors, GPS 1.5 m Gauss-Markov + white)"
+    print(f"\n{caption}")
+    detector = results.table("detector", DETECTOR_COLUMNS, key=["test"], caption=caption)
     pulls = [first(monitor_run(GpsConfig(spoof_start_s=150.0, spoof_rate_m_s=5.0, spoof_direction_deg=37.0 * s), s), "spoofing_alarm") for s in range(10)]
     jumps = [
         first(monitor_run(GpsConfig(spoof_start_s=150.0, spoof_mode="jump", spoof_jump_m=50.0, spoof_direction_deg=37.0 * s), s), "spoofing_alarm")
@@ -133,16 +190,20 @@ def main() -> None:
     false_alarms = sum(first(monitor_run(GpsConfig(), s, d), "spoofing_alarm") is not None for s, d in clean)
     hours = sum(d - 70.0 for _, d in clean) / 3600
     outage = monitor_run(GpsConfig(outages=[(120.0, 60.0)]), 5)
-    print("| test | result | target |")
-    print("|---|---|---|")
-    print(
-        f"| 5 m/s pull-off, time to alarm (10 flights) | max {max(p - 150 for p in pulls):.1f} s, median {np.median([p - 150 for p in pulls]):.1f} s | <= 5 s |"
-    )
-    print(f"| 50 m jump, time to alarm (10 flights) | max {max(j - 150 for j in jumps):.1f} s | <= 1 s |")
-    print(f"| false alarms, clean flights | {false_alarms} in {hours:.1f} h | 0 in >= 1 h |")
-    print(
-        f"| 60 s jamming outage | lost at +{first(outage, 'gps_lost') - 120:.1f} s, back at +{first(outage, 'gps_back') - 120:.1f} s, trust restored at +{first(outage, 'trust_restored') - 120:.1f} s | reported |"
-    )
+    print(detector.header())
+    pull_delays = [p - 150 for p in pulls]
+    rows = [
+        ("5 m/s pull-off, time to alarm (10 flights)", f"max {max(pull_delays):.1f} s, median {np.median(pull_delays):.1f} s", "<= 5 s"),
+        ("50 m jump, time to alarm (10 flights)", f"max {max(j - 150 for j in jumps):.1f} s", "<= 1 s"),
+        ("false alarms, clean flights", f"{false_alarms} in {hours:.1f} h", "0 in >= 1 h"),
+        (
+            "60 s jamming outage",
+            f"lost at +{first(outage, 'gps_lost') - 120:.1f} s, back at +{first(outage, 'gps_back') - 120:.1f} s, trust restored at +{first(outage, 'trust_restored') - 120:.1f} s",
+            "reported",
+        ),
+    ]
+    for test, result, target in rows:
+        print(detector.add({"test": test, "result": result, "target": target}))
 
 
 if __name__ == "__main__":

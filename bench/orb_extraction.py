@@ -1,9 +1,12 @@
-"""ORB extraction alone, on the same frames in one run: OpenCV's own ORB (the issue's reference),
-EVP's extractor in the caller's thread, and EVP's extractor with a second thread sharing the
-pyramid levels (the default). The three are timed frame by frame in turn, so machine load hits
-them alike.
+"""ORB extraction alone: OpenCV's own ORB (the reference the SLAM issue's speed aim is set
+against), EVP's extractor in the caller's thread, and EVP's extractor with a second thread sharing
+the pyramid levels (the default). The three are timed frame by frame in turn on the same frames,
+so machine load hits them alike.
 
-Usage: python bench/orb_extraction.py [--frames 100] [--only NAME ...]
+Usage: python bench/orb_extraction.py [--frames 100] [--only SEQ ...]
+
+Prints per sequence the median ms of each and two ratios: two threads against OpenCV, and one
+thread against two. Needs ../shared/data.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from results import Results
 
 from evp.config import Settings
 from evp.io.registry import open_dataset
@@ -31,7 +35,18 @@ def _ms(extract, grey: np.ndarray) -> float:
     return (time.perf_counter() - start) * 1000
 
 
-def _row(name: str, frames: int) -> str:
+COLUMNS = [
+    ("sequence", "{sequence}"),
+    ("frames", "{frames}"),
+    ("OpenCV ORB ms", "{opencv_ms:.1f}"),
+    ("EVP one thread ms", "{one_thread_ms:.1f}"),
+    ("EVP two threads ms", "{two_threads_ms:.1f}"),
+    ("two threads / OpenCV", "{two_threads_to_opencv:.2f}"),
+    ("one / two threads", "{one_to_two_threads:.2f}"),
+]
+
+
+def _record(name: str, frames: int) -> dict:
     dataset = open_dataset(SHARED / name)
     settings = Settings()
     camera = camera_for(dataset, settings)
@@ -47,10 +62,15 @@ def _row(name: str, frames: int) -> str:
         for key in ("one thread", "two threads"):
             times[key].append(_ms(extractors[key], grey))
     median = {key: float(np.median(value)) for key, value in times.items()}
-    return (
-        f"| {name} | {len(times['opencv'])} | {median['opencv']:.1f} | {median['one thread']:.1f} | {median['two threads']:.1f} "
-        f"| {median['two threads'] / median['opencv']:.2f} | {median['one thread'] / median['two threads']:.2f} |"
-    )
+    return {
+        "sequence": name,
+        "frames": len(times["opencv"]),
+        "opencv_ms": median["opencv"],
+        "one_thread_ms": median["one thread"],
+        "two_threads_ms": median["two threads"],
+        "two_threads_to_opencv": median["two threads"] / median["opencv"],
+        "one_to_two_threads": median["one thread"] / median["two threads"],
+    }
 
 
 def main() -> None:
@@ -59,14 +79,15 @@ def main() -> None:
     parser.add_argument("--only", nargs="+", choices=SEQUENCES)
     args = parser.parse_args()
     only = f" --only {' '.join(args.only)}" if args.only else ""
-    print(f"command: python bench/orb_extraction.py --frames {args.frames}{only}  ({platform.node()}, {platform.machine()})\n")
-    print("| sequence | frames | OpenCV ORB ms | EVP one thread ms | EVP two threads ms | two threads / OpenCV | one / two threads |")
-    print("|---|---|---|---|---|---|---|")
+    command = f"python bench/orb_extraction.py --frames {args.frames}{only}"
+    print(f"command: {command}  ({platform.node()}, {platform.machine()})\n")
+    table = Results("orb_extraction", command).table("extraction", COLUMNS, key=["sequence"], caption="Median ms per frame, timed in turn on the same frames")
+    print(table.header())
     for name in args.only or SEQUENCES:
         if not (SHARED / name).exists():
             print(f"| {name} | missing |" + " |" * 5)
             continue
-        print(_row(name, args.frames), flush=True)
+        print(table.add(_record(name, args.frames)), flush=True)
 
 
 if __name__ == "__main__":

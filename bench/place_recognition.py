@@ -1,13 +1,17 @@
 """Place recognition on real images: does the keyframe database find where a frame was taken?
 
-For each shared image sequence, every 6th frame goes into the database; the frames midway between
-are the queries, as taken, turned by 90 and 180 degrees (a drone coming back on another heading)
-and seen from further away (0.75x, another height). A query is recognised when its best-scoring
-database frame is one of its two neighbours. Methods: the relocaliser's former thumbnails, the
-shipped vocabulary (trained on EVP's renders only), and a vocabulary trained the same way on the
-*other* shared sequences (leave one out: what training on real images would give).
+For each shared image sequence, every 6th frame goes into the database; the frames midway
+between are the queries, as taken, turned by 90 and 180 degrees (a drone coming back on another
+heading) and seen from further away (0.75x, another height). A query is recognised when its
+best-scoring database frame is one of its two neighbours. Methods: small thumbnails (what the
+relocaliser used before the vocabulary), the shipped vocabulary (trained on EVP's renders only)
+and a vocabulary trained the same way on the *other* shared sequences (leave one out: what
+training on real images would give).
 
-    python bench/place_recognition.py [--only SEQ ...] [--step 6]
+Usage: python bench/place_recognition.py [--only SEQ ...] [--step 6]
+
+Prints per sequence and view the share of queries recognised by each method. Needs
+../shared/data; it trains one vocabulary per sequence.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from results import Results
 
 from evp.config import OrbSettings
 from evp.io.registry import open_dataset
@@ -75,6 +80,16 @@ def _recall(database_scores: list[np.ndarray], neighbours: list[tuple[int, int]]
     return float(np.mean(hits)) if hits else float("nan")
 
 
+COLUMNS = [
+    ("sequence", "{sequence}"),
+    ("database / queries", "{database} / {queries}"),
+    ("view", "{view}"),
+    ("thumbnail", "{thumbnail:.0%}"),
+    ("vocabulary from renders (shipped)", "{shipped:.0%}"),
+    ("vocabulary from the other real sequences", "{leave_one_out:.0%}"),
+]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--only", nargs="+", choices=SEQUENCES)
@@ -90,10 +105,13 @@ def main() -> None:
         extractors[name] = OrbExtractor(OrbSettings(), camera)
         print(f"read {name}: {len(frames)} frames", file=sys.stderr)
     shipped = Vocabulary.load(default_vocabulary_path())
-    print(f"command: python bench/place_recognition.py {' '.join(sys.argv[1:])}".rstrip())
+    command = f"python bench/place_recognition.py {' '.join(sys.argv[1:])}".rstrip()
+    print(f"command: {command}")
     print()
-    print("| sequence | database / queries | view | thumbnail | vocabulary from renders (shipped) | vocabulary from the other real sequences |")
-    print("|---|---|---|---|---|---|")
+    table = Results("place_recognition", command).table(
+        "recall", COLUMNS, key=["sequence", "step", "view"], caption="Share of queries whose best database frame is a neighbour"
+    )
+    print(table.header())
     for name in names:
         frames, extractor = images[name], extractors[name]
         others = [
@@ -114,7 +132,8 @@ def main() -> None:
             for key, voc in (("shipped", shipped), ("real", leave_one_out)):
                 scores = [np.array([bow_score(voc.transform(d), b) for b in db_bows[key]]) for d in query_desc]
                 recalls.append(_recall(scores, neighbours))
-            print(f"| {name} | {len(database)} / {len(queries)} | {view} | " + " | ".join(f"{100 * r:.0f} %" for r in recalls) + " |", flush=True)
+            record = {"sequence": name, "step": args.step, "database": len(database), "queries": len(queries), "view": view}
+            print(table.add({**record, "thumbnail": recalls[0], "shipped": recalls[1], "leave_one_out": recalls[2]}), flush=True)
 
 
 if __name__ == "__main__":

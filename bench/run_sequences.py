@@ -1,13 +1,22 @@
-"""`evp run` on every shared image sequence with ground truth, plus a rendered seed-000 circle at
-640x380: one Markdown table (the SLAM issue's bench).
+"""`evp run` on every shared image sequence with ground truth and on a rendered 640x380 circle:
+accuracy, how much is tracked, and speed. The main bench of the SLAM engine.
 
-Usage: python bench/run_sequences.py [--out runs/bench] [--estimator auto|slam|klt-vo] [--only NAME ...]
+Each sequence goes through the same code as `evp run` (estimator `auto`: SLAM for video, the
+nadir mosaic odometry and survey adjustment for survey photos), mapping inline, so ATE and
+tracking are deterministic; milliseconds are not. Also relocalisation on EuRoC MH01 after a covered
+lens (first 150 frames mapped, 3 frames black, frames 100-119 shown again), and the circle (seed 1,
+26 s, one lap, rendered by `evp sim`) with the light VO as well.
 
-Also: relocalisation on EuRoC MH01 after a forced loss (`evp.slam.trials`).
+Usage: python bench/run_sequences.py [--out runs/bench] [--estimator auto|slam|klt-vo] [--only SEQ ...] [--set SECTION.KEY=VALUE ...] [--circle-seeds N ...]
 
-Speed is reported as measured in the same run: tracking ms/frame (median, p95; for SLAM without
-the inline mapping, which is listed apart) and its ratio to OpenCV's own ORB (same feature count)
-timed on the same frames.
+Prints one Markdown row per sequence: ATE (Sim3-aligned RMSE, m; against GPS for the Toledo
+photos) and as a share of the path, frames tracked in trajectory.tum and answered live, frames to
+initialise, tracking ms per frame (median, p95; without inline mapping, which is listed apart as
+mapping ms per keyframe), its ratio to OpenCV's own ORB timed on the same frames (the steadier
+speed figure), loops closed and peak memory. `--only` runs just those sequences (no
+relocalisation, no circle unless `--circle-seeds`); `--set` changes a setting for the run (its
+rows are kept apart from the defaults'). Needs ../shared/data (missing sequences are listed as
+such). `evp run`'s outputs for each sequence go to `--out`.
 """
 
 from __future__ import annotations
@@ -23,6 +32,7 @@ from pathlib import Path
 
 import yaml
 from pydantic import ValidationError
+from results import Results
 
 from evp.config import Settings
 from evp.io.registry import open_dataset
@@ -44,31 +54,54 @@ def render_circle(folder: Path, seed: int = 1) -> Path:
     return folder
 
 
-TABLE_HEADER = (
-    "| sequence | estimator | ATE Sim3 (m) | ATE / path | tracked (in trajectory.tum; answered live) | frames to initialise | ms/frame median | p95 | ratio to OpenCV ORB "
-    "| mapping ms/keyframe | loops closed | peak memory so far (MB) |\n" + "|---" * 12 + "|"
-)
+COLUMNS = [
+    ("sequence", "{sequence}"),
+    ("estimator", "{estimator}"),
+    ("ATE Sim3 (m)", "{ate_m:.4f}"),
+    ("ATE / path", "{ate_path_percent:.2f} %"),
+    ("tracked (in trajectory.tum; answered live)", "{tracked_percent:.1f} % ({tracked_frames}/{frames}; {tracked_live_frames} live)"),
+    ("frames to initialise", "{init_frame}"),
+    ("ms/frame median", "{tracking_ms_median:.1f}"),
+    ("p95", "{tracking_ms_p95:.1f}"),
+    ("ratio to OpenCV ORB", "{orb_ratio:.2f}"),
+    ("mapping ms/keyframe", "{mapping_ms_median:.0f}"),
+    ("loops closed", "{loops_closed}"),
+    ("peak memory so far (MB)", "{peak_memory_mb:.0f}"),
+]
+RELOCALISATION_COLUMNS = [
+    ("relocalisation after a covered lens", "{sequence}"),
+    ("frames to relocalise", "{frames_to_relocalise}"),
+    ("position vs first pass (map units)", "{position_error:.4f}"),
+    ("rotation (deg)", "{rotation_error_deg:.3f}"),
+]
 
 
-def _row(name: str, path: Path, settings: Settings, out: Path) -> str:
+def _record(name: str, path: Path, settings: Settings, out: Path) -> dict:
     dataset = open_dataset(path)
     estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
     result = run_dataset(dataset, estimator, None, settings.orb.n_features)
     metrics = write_outputs(result, dataset, settings, out / name)
     timing = json.loads((out / name / "timing.json").read_text())
-    ate = f"{metrics['rmse']:.4f}" if "rmse" in metrics else "n/a"
-    share = f"{100 * metrics['rmse'] / metrics['reference_path_length_m']:.2f} %" if "rmse" in metrics else "n/a"
-    mapping = f"{timing['mapping_ms_median']:.0f}" if "mapping_ms_median" in timing else "-"
-    loops = len(metrics["loop_closures"]) if "loop_closures" in metrics else "-"
-    kind = type(estimator).__name__
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    return (
-        f"| {name} | {kind} | {ate} | {share} | {100 * metrics['tracked_fraction']:.1f} % ({metrics['tracked_frames']}/{metrics['frames']}; {metrics['tracked_live_frames']} live) | {metrics['init_frame']} "
-        f"| {timing['tracking_ms_median']:.1f} | {timing['tracking_ms_p95']:.1f} | {timing.get('tracking_to_orb_ratio', float('nan')):.2f} | {mapping} | {loops} | {peak:.0f} |"
-    )
+    return {
+        "sequence": name,
+        "estimator": type(estimator).__name__,
+        "ate_m": metrics.get("rmse"),
+        "ate_path_percent": 100 * metrics["rmse"] / metrics["reference_path_length_m"] if "rmse" in metrics else None,
+        "tracked_percent": 100 * metrics["tracked_fraction"],
+        "tracked_frames": metrics["tracked_frames"],
+        "frames": metrics["frames"],
+        "tracked_live_frames": metrics["tracked_live_frames"],
+        "init_frame": metrics["init_frame"],
+        "tracking_ms_median": timing["tracking_ms_median"],
+        "tracking_ms_p95": timing["tracking_ms_p95"],
+        "orb_ratio": timing.get("tracking_to_orb_ratio"),
+        "mapping_ms_median": timing.get("mapping_ms_median"),
+        "loops_closed": len(metrics["loop_closures"]) if "loop_closures" in metrics else None,
+        "peak_memory_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    }
 
 
-def _relocalisation(path: Path) -> str:
+def _relocalisation(path: Path) -> dict:
     """Map the first 150 frames, cover the lens for 3, show frames 100-119 again."""
     from evp.slam.system import SlamSystem
     from evp.slam.trials import cover_lens_then_revisit, relocalisation_error
@@ -79,9 +112,9 @@ def _relocalisation(path: Path) -> str:
     first, again = cover_lens_then_revisit(SlamSystem(dataset.camera, settings.orb, settings.slam), frames, 150, slice(100, 120))
     result = relocalisation_error(first, again, slice(100, 120))
     if result is None:
-        return f"| {path.name} | not relocalised in 20 frames | | |"
+        return {"sequence": path.name, "frames_to_relocalise": "not relocalised in 20", "position_error": None, "rotation_error_deg": None}
     index, distance, angle = result
-    return f"| {path.name} | {index + 1} | {distance:.4f} | {angle:.3f} |"
+    return {"sequence": path.name, "frames_to_relocalise": index + 1, "position_error": distance, "rotation_error_deg": angle}
 
 
 def settings_with_changes(estimator: str, changes: list[str]) -> Settings:
@@ -112,31 +145,35 @@ def main() -> None:
     only = f" --only {' '.join(args.only)}" if args.only else ""
     changed = f" --set {' '.join(args.set)}" if args.set else ""
     seeds = f" --circle-seeds {' '.join(map(str, args.circle_seeds))}" if args.circle_seeds else ""
-    print(
-        f"command: python bench/run_sequences.py --out {args.out} --estimator {args.estimator}{only}{changed}{seeds}  ({platform.node()}, {platform.machine()})\n"
-    )
-    print(TABLE_HEADER)
+    changes = " ".join(args.set)  # part of each row's key: a run with --set does not replace the defaults' rows
+    command = f"python bench/run_sequences.py --out {args.out} --estimator {args.estimator}{only}{changed}{seeds}"
+    print(f"command: {command}  ({platform.node()}, {platform.machine()})\n")
+    results = Results("run_sequences", command)
+    table = results.table("sequences", COLUMNS, key=["sequence", "estimator", "changes"], caption="`evp run` on each sequence (inline mapping, deterministic)")
+    print(table.header())
     for name in args.only or SEQUENCES:
         path = SHARED / name
         if not path.exists():
             print(f"| {name} | missing |" + " |" * 10)
             continue
-        print(_row(name, path, settings, args.out))
+        print(table.add({**_record(name, path, settings, args.out), "changes": changes}))
         sys.stdout.flush()
     euroc = SHARED / SEQUENCES[0]
     if euroc.exists() and not args.only:
-        print("\n| relocalisation after a covered lens | frames to relocalise | position vs first pass (map units) | rotation (deg) |")
-        print("|---|---|---|---|")
-        print(_relocalisation(euroc))
+        relocalisation = results.table("relocalisation", RELOCALISATION_COLUMNS, key=["sequence", "changes"], caption="Relocalisation after a covered lens")
+        print("\n" + relocalisation.header())
+        print(relocalisation.add({**_relocalisation(euroc), "changes": changes}))
     if circle_seeds:
         print()
-        print(TABLE_HEADER)
+        print(table.header())
     for seed in circle_seeds:
         with tempfile.TemporaryDirectory() as tmp:
             circle = render_circle(Path(tmp) / "circle", seed)
-            print(_row(f"sim circle-indoor 640x380 (26 s, one lap, seed {seed})", circle, settings, args.out), flush=True)
+            print(table.add({**_record(f"sim circle-indoor 640x380 (26 s, one lap, seed {seed})", circle, settings, args.out), "changes": changes}), flush=True)
             if seed == circle_seeds[0] and not args.only:
-                print(_row("sim circle-indoor 640x380, VO mode", circle, Settings(estimator="klt-vo"), args.out), flush=True)
+                print(
+                    table.add({**_record("sim circle-indoor 640x380, VO mode", circle, Settings(estimator="klt-vo"), args.out), "changes": changes}), flush=True
+                )
 
 
 if __name__ == "__main__":

@@ -1,11 +1,17 @@
-"""Base station over loopback: frame-sent to pose-received latency at 640x380 and 30 fps, and how
-many 30 fps streams one machine sustains, for the SLAM estimator and the light VO.
+"""The base station over loopback: frame-sent to pose-received latency at 640x380 and 30 fps, and
+how many 30 fps streams one machine sustains, with the SLAM estimator and with the light VO.
 
-Each row starts ``evp serve`` (TLS, as deployed) and K concurrent ``evp stream --realtime`` of the
-rendered seed-000 circle (640x380, 30 fps, JPEG q90): a phone's pace, so the station drops what it
-cannot keep up with. A stream counts as sustained when >= 90 % of its frames get a pose.
+Each row starts `evp serve` (TLS, as deployed) and K concurrent `evp stream --realtime` of the
+rendered circle (640x380, 30 fps, JPEG q90), or of a real sequence at its own rate: a phone's
+pace, so the station drops what it cannot keep up with. The station, its estimator processes and
+the clients share the machine.
 
-    python bench/station_latency.py [--duration 20] [--streams 1 2 3] [--estimators slam klt-vo] [--source SEQUENCE]
+Usage: python bench/station_latency.py [--duration 20] [--streams 1 2 3] [--estimators slam klt-vo] [--source SEQUENCE]
+
+Prints per estimator and stream count: frames per stream, the share answered with a pose (lowest
+to highest stream), poses per second over all streams, latency p50 and p95 of the worst stream,
+and how many streams were sustained (at least 90 % answered). Needs the station extra (installed
+by scripts/setup.sh); no shared data unless `--source`.
 """
 
 from __future__ import annotations
@@ -19,6 +25,8 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the station runner the tests use
+from results import Results  # noqa: E402
+
 from tests.station.conftest import running_station  # noqa: E402
 
 SUSTAINED = 0.90
@@ -42,7 +50,20 @@ def _streams(url: str, source: Path, count: int) -> list[dict]:
     return summaries
 
 
-def _row(estimator: str, count: int, source: Path, work: Path) -> str:
+COLUMNS = [
+    ("source", "{source}"),
+    ("estimator", "{estimator}"),
+    ("streams", "{streams}"),
+    ("frames each", "{frames_each}"),
+    ("frames answered with a pose", "{answered_min_percent:.0f}-{answered_max_percent:.0f} %"),
+    ("poses/s (all streams)", "{poses_per_s:.1f}"),
+    ("latency p50 ms (worst stream)", "{latency_ms_p50:.0f}"),
+    ("latency p95 ms", "{latency_ms_p95:.0f}"),
+    ("streams sustained", "{sustained}/{streams}"),
+]
+
+
+def _record(estimator: str, count: int, source: Path, work: Path) -> dict:
     config = work / f"{estimator}.yaml"
     config.write_text(f"estimator: {estimator}\n")
     with running_station(work / f"station-{estimator}-{count}", "--config", str(config)) as station:
@@ -54,10 +75,17 @@ def _row(estimator: str, count: int, source: Path, work: Path) -> str:
     sustained = sum(a >= SUSTAINED for a in answered)
     frames = summaries[0]["frames_sent"]
     poses_per_s = sum(s["poses_received"] / s["duration_s"] for s in summaries)
-    return (
-        f"| {estimator} | {count} | {frames} | {min(answered) * 100:.0f}-{max(answered) * 100:.0f} % | "
-        f"{poses_per_s:.1f} | {p50:.0f} | {p95:.0f} | {sustained}/{count} |"
-    )
+    return {
+        "estimator": estimator,
+        "streams": count,
+        "frames_each": frames,
+        "answered_min_percent": 100 * min(answered),
+        "answered_max_percent": 100 * max(answered),
+        "poses_per_s": poses_per_s,
+        "latency_ms_p50": p50,
+        "latency_ms_p95": p95,
+        "sustained": sustained,
+    }
 
 
 def main() -> None:
@@ -69,17 +97,19 @@ def main() -> None:
         "--source", type=Path, help="a real sequence to stream instead of the rendered circle (e.g. ../shared/data/euroc_mh_01_easy_moving_360)"
     )
     args = parser.parse_args()
-    print(f"command: python bench/station_latency.py {' '.join(sys.argv[1:])}")
-    print(
-        "| estimator | streams | frames each | frames answered with a pose | poses/s (all streams) | latency p50 ms (worst stream) | latency p95 ms | streams sustained |"
+    command = f"python bench/station_latency.py {' '.join(sys.argv[1:])}".rstrip()
+    print(f"command: {command}")
+    table = Results("station_latency", command).table(
+        "streams", COLUMNS, key=["source", "estimator", "streams"], caption="Loopback, TLS, JPEG q90; the station and its clients share the machine"
     )
-    print("|---|---|---|---|---|---|---|---|")
+    print(table.header())
+    label = args.source.name if args.source else f"rendered circle 640x380 30 fps, {args.duration:g} s"
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         source = args.source or _circle(work / "circle", args.duration)
         for estimator in args.estimators:
             for count in args.streams:
-                print(_row(estimator, count, source, work), flush=True)
+                print(table.add({"source": label, **_record(estimator, count, source, work)}), flush=True)
 
 
 if __name__ == "__main__":

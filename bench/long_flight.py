@@ -23,7 +23,7 @@ import numpy as np
 
 from evp.config import Settings
 from evp.io.registry import open_dataset
-from evp.pipeline import TRACKED_STATES, run_dataset, write_outputs
+from evp.pipeline import run_dataset, write_outputs
 from evp.run_setup import camera_for, make_estimator
 from evp.sim.generate import generate
 from evp.sim.scenarios import SimOptions
@@ -35,7 +35,7 @@ def _rss_mb() -> float:
 
 
 def _losses(states: list) -> int:
-    tracked = np.array([s in TRACKED_STATES for s in states])
+    tracked = np.array([s.tracked for s in states])
     return int(np.sum(tracked[:-1] & ~tracked[1:]))
 
 

@@ -161,7 +161,7 @@ class SlamSystem:
         stamps, poses = [], []
         with self.map.lock:
             for record in self.records:
-                if record.state not in (TrackingState.OK, TrackingState.RELOCALIZED):
+                if not record.state.tracked:
                     continue
                 T_ref = self._keyframe_pose(record.reference_kf)
                 if T_ref is None:

@@ -118,7 +118,7 @@ def drift_of_final_map_poses(dataset, estimates: list[PoseEstimate]) -> tuple[in
     for estimate in estimates:
         if estimate.tracking_state == TrackingState.NOT_INITIALIZED:
             stamps, poses = [], []  # a start tracking discarded: its poses were in another frame
-        elif estimate.tracking_state in (TrackingState.OK, TrackingState.RELOCALIZED):
+        elif estimate.tracking_state.tracked:
             stamps.append(estimate.timestamp)
             poses.append(estimate.T_world_cam)
     stamps, poses = np.array(stamps), np.array(poses)

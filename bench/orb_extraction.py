@@ -23,6 +23,7 @@ from results import Results
 from evp.config import Settings
 from evp.io.registry import open_dataset
 from evp.run_setup import camera_for
+from evp.vision.images import to_grey
 from evp.vision.orb import OrbExtractor
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -57,7 +58,7 @@ def _record(name: str, frames: int) -> dict:
     }
     times: dict[str, list[float]] = {key: [] for key in extractors}
     for _, frame in zip(range(frames), dataset.frames(), strict=False):
-        grey = frame.image if frame.image.ndim == 2 else cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY)
+        grey = to_grey(frame.image)
         times["opencv"].append(_ms(lambda image: extractors["opencv"](image, None), grey))
         for key in ("one thread", "two threads"):
             times[key].append(_ms(extractors[key], grey))

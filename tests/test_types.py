@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from evp.types import CameraModel, Frame
+from evp.types import CameraModel, Frame, TrackingState
 
 EUROC = CameraModel(752, 480, 458.654, 457.296, 367.215, 248.375, -0.28340811, 0.07395907, 0.00019359, 1.76187114e-05)
 cameras = st.builds(
@@ -83,3 +83,8 @@ def test_records_are_frozen_and_timestamp_first():
 
     for record in (types.Frame, types.ImuSample, types.GpsFix, types.BaroSample, types.WheelOdometry, types.WifiScan, types.PoseEstimate):
         assert fields(record)[0].name == "timestamp"
+
+
+def test_tracked_states_are_ok_and_relocalized():
+    assert {state for state in TrackingState if state.tracked} == {TrackingState.OK, TrackingState.RELOCALIZED}
+    assert TrackingState("RELOCALIZED").tracked and not TrackingState("LOST").tracked  # as on the wire

@@ -13,13 +13,11 @@ from evp.types import CameraModel
 
 def camera_for(dataset: Dataset, settings: Settings) -> CameraModel:
     """The settings' calibration file or profile when given, else the dataset's own calibration."""
-    from evp.calib.camera_files import read_camera
-    from evp.calib.profiles import load_profile
+    from evp.calib.profiles import configured_camera
 
-    if settings.camera.calibration_file is not None:
-        return read_camera(settings.camera.calibration_file)
-    if settings.camera.profile:
-        return load_profile(settings.camera.profile)
+    camera = configured_camera(settings.camera)
+    if camera is not None:
+        return camera
     if dataset.camera is None:
         raise CalibrationError(dataset.root, "the dataset has no calibration; give camera.calibration_file or camera.profile in --config")
     return dataset.camera

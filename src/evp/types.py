@@ -86,6 +86,14 @@ class TrackingState(enum.Enum):
     LOST = "LOST"
     RELOCALIZED = "RELOCALIZED"
 
+    @property
+    def tracked(self) -> bool:
+        """Whether a pose in this state locates the camera (tracked, or found again after being
+        lost); only such poses go into trajectories, counts of tracked frames and the vehicle's
+        position output. Wire and database states are the member values:
+        ``TrackingState(text).tracked``."""
+        return self in (TrackingState.OK, TrackingState.RELOCALIZED)
+
 
 @dataclass(frozen=True)
 class PoseEstimate:

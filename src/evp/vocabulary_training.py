@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -14,18 +15,25 @@ from evp.errors import EvpError
 from evp.vision.orb import OrbExtractor
 from evp.vision.vocabulary import Vocabulary, train_vocabulary
 
+if TYPE_CHECKING:
+    from evp.sim.vocabulary_images import TrainingScene
 
-def rendered_descriptors(frames_per_scene: int, orb: OrbSettings, on_image: Callable[[], None] | None = None) -> tuple[list[np.ndarray], list[str]]:
-    """Descriptors of each rendered training image, and the scenes they came from."""
+
+def rendered_descriptors(
+    frames_per_scene: int, orb: OrbSettings, on_image: Callable[[], None] | None = None, scenes: tuple[TrainingScene, ...] | None = None
+) -> tuple[list[np.ndarray], list[str]]:
+    """Descriptors of each rendered training image, and the scenes they came from (all training
+    scenes unless ``scenes`` names some)."""
     from evp.sim.vocabulary_images import TRAINING_SCENES, training_images
 
+    scenes = TRAINING_SCENES if scenes is None else scenes
     sets, extractors = [], {}
-    for label, camera, grey in training_images(frames_per_scene):
+    for label, camera, grey in training_images(frames_per_scene, scenes):
         extractor = extractors.setdefault(label, OrbExtractor(orb, camera))
         sets.append(extractor.extract(grey).descriptors)
         if on_image is not None:
             on_image()
-    return sets, [f"{scene.scenario} {scene.options}" for scene in TRAINING_SCENES]
+    return sets, [scene.label for scene in scenes]
 
 
 def dataset_descriptors(paths: list[Path], every: int, orb: OrbSettings, on_image: Callable[[], None] | None = None) -> tuple[list[np.ndarray], list[str]]:

@@ -1,8 +1,8 @@
 import pytest
 
 from evp.calib.camera_files import read_camera, write_opencv_yaml
-from evp.calib.profiles import load_profile, profile_names
-from evp.errors import CalibrationError, EvpError
+from evp.calib.profiles import load_profile
+from evp.errors import CalibrationError
 
 EXPECTED = dict(width=640, height=480, fx=500.0, fy=501.0, cx=320.5, cy=240.5, k1=0.1, k2=-0.2, p1=0.001, p2=0.002)
 
@@ -67,16 +67,6 @@ def test_written_yaml_reads_back_exactly(tmp_path):
     back = read_camera(tmp_path / "c.yaml")
     assert back.K.tolist() == camera.K.tolist()
     assert back.distortion.tolist() == camera.distortion.tolist()
-
-
-def test_nexus_profile_matches_seed_000():
-    camera = load_profile("nexus5x_640x380")
-    assert (camera.width, camera.height) == (640, 380)
-    assert (camera.fx, camera.fy, camera.cx, camera.cy) == (494.08, 494.16, 319.85, 173.56)
-    assert (camera.k1, camera.k2, camera.p1, camera.p2, camera.k3) == (0.04, -0.09, -0.014, 0.0, 0.0)
-    assert "nexus5x_640x380" in profile_names()
-    with pytest.raises(EvpError, match="unknown camera profile"):
-        load_profile("iphone_99")
 
 
 @pytest.mark.parametrize(

@@ -8,6 +8,7 @@ from evp.io.trajectory import (
     TrajectoryFormat,
     detect_trajectory_format,
     read_trajectory,
+    tum_text,
     write_trajectory,
 )
 
@@ -97,3 +98,10 @@ def test_tum_writer_needs_timestamps(tmp_path):
     trajectory = _random_trajectory()
     with pytest.raises(ValueError, match="timestamps"):
         write_trajectory(tmp_path / "x.tum", Trajectory(trajectory.positions, trajectory.quats_xyzw), TrajectoryFormat.TUM)
+
+
+def test_tum_text_is_the_file_and_an_empty_trajectory_is_its_header(tmp_path):
+    trajectory = _random_trajectory(5)
+    write_trajectory(tmp_path / "t.tum", trajectory, TrajectoryFormat.TUM)
+    assert tum_text(trajectory) == (tmp_path / "t.tum").read_text()
+    assert tum_text(Trajectory(np.zeros((0, 3)), np.zeros((0, 4)), np.zeros(0))) == "# timestamp tx ty tz qx qy qz qw\n"

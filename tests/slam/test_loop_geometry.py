@@ -1,5 +1,5 @@
-"""Loop closing's geometry on exact data: similarity algebra, the similarity between two
-cameras from matched points, and the pose graph spreading a loop's error."""
+"""Loop closing's geometry on exact data: the similarity between two cameras from matched
+points, and the pose graph spreading a loop's error."""
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -12,24 +12,6 @@ from evp.slam.projection import pinhole_pixels
 from evp.slam.sim3_estimation import estimate_sim3
 
 K = np.array([[400.0, 0, 320], [0, 400.0, 190], [0, 0, 1]])
-
-
-def _random_sim3(rng, n):
-    return Sim3(np.exp(rng.normal(0, 0.2, n)), Rotation.random(n, random_state=rng).as_matrix(), rng.normal(0, 1, (n, 3)))
-
-
-def test_similarity_algebra_round_trips():
-    rng = np.random.default_rng(0)
-    a, b = _random_sim3(rng, 5), _random_sim3(rng, 5)
-    x = rng.normal(0, 1, (5, 3))
-    np.testing.assert_allclose((a @ b).apply(x), a.apply(b.apply(x)), atol=1e-12)
-    np.testing.assert_allclose((a.inverse() @ a).log(), 0, atol=1e-12)
-    np.testing.assert_allclose(Sim3.exp(a.log()).R, a.R, atol=1e-12)
-    # the rigid pose of a similarity projects points corrected by it as before
-    T = a.to_se3()[0]
-    point = np.array([0.3, -0.2, 4.0])
-    corrected = a[0].inverse().apply(point[None])[0]
-    np.testing.assert_allclose(pinhole_pixels((T[:3, :3] @ corrected + T[:3, 3])[None], K), pinhole_pixels(point[None], K), atol=1e-9)
 
 
 def test_similarity_between_two_cameras_from_noisy_matches_with_outliers():

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import json
 import signal
@@ -9,12 +10,14 @@ import socket
 import ssl
 import subprocess
 import sys
+import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+import websockets
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
@@ -75,6 +78,82 @@ def insecure_tls() -> ssl.SSLContext:
     context.check_hostname = False
     context.verify_mode = ssl.CERT_NONE
     return context
+
+
+class OperatorFeed:
+    """The station's live feed to operator pages (``/ws/operator``), read on a thread, so that a
+    test waits for what the station announces (a session ended, interrupted, released) instead of
+    sleeping. Everything received since connecting is kept; waits look at all of it."""
+
+    def __init__(self, station: RunningStation, token: str = ""):
+        self.url = f"{station.url}/ws/operator" + (f"?token={token}" if token else "")
+        self.messages: list[dict] = []
+        self._arrived = threading.Condition()
+        self._loop = asyncio.new_event_loop()
+        self._reader: asyncio.Task | None = None
+        self._thread = threading.Thread(target=self._run, name="operator-feed", daemon=True)
+        self._failure: BaseException | None = None
+
+    def __enter__(self) -> OperatorFeed:
+        self._thread.start()
+        self.wait_for(lambda m: m["type"] == "snapshot", 30, "its snapshot")  # sent once this feed is registered
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._reader is not None:
+            self._loop.call_soon_threadsafe(self._reader.cancel)
+        self._thread.join(timeout=10)
+
+    def _run(self) -> None:
+        async def read() -> None:
+            async with websockets.connect(self.url, ssl=insecure_tls()) as connection:
+                async for text in connection:
+                    with self._arrived:
+                        self.messages.append(json.loads(text))
+                        self._arrived.notify_all()
+
+        try:
+            self._reader = self._loop.create_task(read())
+            self._loop.run_until_complete(self._reader)
+        except (asyncio.CancelledError, websockets.ConnectionClosed):
+            pass
+        except BaseException as exc:  # a refused or broken feed fails the waiting test, not silently
+            self._failure = exc
+        finally:
+            with self._arrived:
+                self._arrived.notify_all()
+            self._loop.close()
+
+    def wait_for(self, predicate: Callable[[dict], bool], timeout: float, what: str) -> dict:
+        """The first message (received before or after this call) that ``predicate`` accepts."""
+
+        def found() -> dict | None:
+            return next((m for m in self.messages if predicate(m)), None)
+
+        with self._arrived:
+            self._arrived.wait_for(lambda: found() is not None or self._failure is not None or not self._thread.is_alive(), timeout)
+            message = found()
+        if message is None:
+            raise AssertionError(f"the station did not announce {what} within {timeout:g} s (feed: {self._failure!r})")
+        return message
+
+    def event(self, code: str, session_id: str | None = None, timeout: float = 60) -> dict:
+        """The station's event ``code`` (of ``session_id`` when given): it is logged and broadcast together."""
+
+        def matches(m: dict) -> bool:
+            return m["type"] == "event" and m["event"]["code"] == code and session_id in (None, m["event"]["session_id"])
+
+        return self.wait_for(matches, timeout, f"event {code!r}" + (f" of session {session_id}" if session_id else ""))["event"]
+
+
+def committed(check: Callable[[], bool], what: str, timeout: float = 20) -> None:
+    """Wait until the station's database shows ``check``. The station queues its writes and one
+    thread commits them (``evp.station.store``); nothing announces a commit, so this is the one
+    wait that reads until the rows are there (a commit takes milliseconds after the event)."""
+    deadline = time.monotonic() + timeout
+    while not check():
+        assert time.monotonic() < deadline, f"the station did not commit {what} within {timeout:g} s"
+        time.sleep(0.02)
 
 
 def run_stream(*args: str, timeout: float = 300) -> dict:

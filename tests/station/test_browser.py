@@ -8,7 +8,6 @@ must then see the trajectory and the event log. Screenshots land in test-artifac
 from __future__ import annotations
 
 import shutil
-import time
 from pathlib import Path
 
 import cv2
@@ -71,7 +70,8 @@ def test_phone_page_streams_and_operator_sees_the_trajectory(tmp_path, station_d
             "(() => { const s = window.evp.selected; return s && (window.evp.trajectories[s] || []).filter(p => p.state === 'OK').length >= 10; })()",
             timeout=60_000,
         )
-        time.sleep(1.5)  # a status tick for the status bar
+        # the status bar fills on the station's next status tick (each second)
+        operator.wait_for_function("document.getElementById('st-state').textContent === 'running'", timeout=10_000)
         phone.screenshot(path=str(ARTIFACTS / "phone_page.png"), full_page=True)
         operator.screenshot(path=str(ARTIFACTS / "operator_ui.png"), full_page=True)
         log_text = operator.inner_text("#event-log")

@@ -23,7 +23,7 @@ from evp.run_setup import make_estimator
 from evp.station.recording import decoded_messages, has_summary
 from evp.station.store import SessionStore
 from tests.conftest import SAMPLE
-from tests.station.conftest import free_port, run_stream, running_station
+from tests.station.conftest import OperatorFeed, free_port, run_stream, running_station
 
 os.environ.setdefault("MAVLINK20", "1")
 
@@ -55,9 +55,9 @@ def test_sample_streamed_to_the_station_matches_evp_run(tmp_path, station_data):
     mavlink_port = free_port(kind=2)  # SOCK_DGRAM
     listener = MavlinkListener(mavlink_port)
     listener.start()
-    with running_station(station_data, "--mavlink", f"udpout:127.0.0.1:{mavlink_port}") as station:
+    with running_station(station_data, "--mavlink", f"udpout:127.0.0.1:{mavlink_port}") as station, OperatorFeed(station) as feed:
         summary = run_stream(str(SAMPLE), "--url", station.url, "--quiet", "--out", str(tmp_path / "stream"))
-        time.sleep(0.5)
+        feed.event("ended", summary["session_id"])
     listener.running = False
     listener.join()
 

@@ -18,7 +18,7 @@ from evp.station.protocol import PROTOCOL_VERSION, CameraConfig, Config, Hello, 
 from evp.station.recording import decoded_messages, has_summary
 from evp.station.store import SessionStore
 from tests.conftest import SAMPLE
-from tests.station.conftest import insecure_tls, running_station
+from tests.station.conftest import OperatorFeed, committed, insecure_tls, running_station
 
 TOKEN = "s3cret"
 
@@ -126,9 +126,9 @@ def test_bad_messages_get_specific_errors_and_the_session_goes_on(station_data, 
         await connection.close()
         return welcome.session_id, [code for _, code in bad if code]
 
-    with running_station(station_data, "--token", TOKEN) as station:
+    with running_station(station_data, "--token", TOKEN) as station, OperatorFeed(station, TOKEN) as feed:
         session_id, codes = asyncio.run(scenario(station.url))
-        time.sleep(0.5)
+        feed.event("ended", session_id)
         assert _http_status(f"{station.http}/api/state") == 401  # the operator API shows the token: it needs it too
         assert _http_status(f"{station.http}/api/state?token={TOKEN}") == 200
         assert _http_status(f"{station.http}/") == 200  # the page itself is public
@@ -162,16 +162,14 @@ def test_killed_client_leaves_an_interrupted_session_that_resumes(station_data, 
         await connection.send('{"type": "bye"}')
         await connection.close()
 
-    with running_station(station_data, "--token", TOKEN) as station:
+    with running_station(station_data, "--token", TOKEN) as station, OperatorFeed(station, TOKEN) as feed:
         session_id = asyncio.run(first_link(station.url))
+        feed.event("interrupted", session_id, timeout=20)
         store = _store(station_data)
-        deadline = time.monotonic() + 20
-        while store.session(session_id)["status"] != "interrupted":
-            assert time.monotonic() < deadline, "the session was not marked interrupted"
-            time.sleep(0.2)
+        committed(lambda: store.session(session_id)["status"] == "interrupted", "the interrupted status")
         assert len(store.rows("frames", session_id)) == 5 and len(store.rows("poses", session_id)) == 5
         asyncio.run(second_link(station.url, session_id))
-        time.sleep(0.5)
+        feed.event("ended", session_id)
     try:
         session = store.session(session_id)
         assert session["status"] == "ended"
@@ -193,12 +191,14 @@ def test_killed_station_loses_nothing_it_recorded(station_data, frames):
 
     with running_station(station_data, "--token", TOKEN) as station:
         session_id = asyncio.run(stream(station.url))
-        time.sleep(0.5)  # the database writer commits what it has queued
+        store = _store(station_data)
+        committed(lambda: len(store.rows("frames", session_id)) == len(store.rows("poses", session_id)) == 6, "the six frames and poses")
+        store.close()
         station.stop(signal.SIGKILL)
         mcap = next((station_data / "sessions").glob("*.mcap"))
         assert not has_summary(mcap)
     with running_station(station_data, "--token", TOKEN):
-        time.sleep(1.0)  # start-up recovery
+        pass  # start-up recovery runs before the station listens (uvicorn's lifespan start)
     store = _store(station_data)
     try:
         session = store.session(session_id)
@@ -229,16 +229,14 @@ def test_unresumed_session_is_released_and_resumes_from_disk_with_a_new_map(tmp_
         await connection.send('{"type": "bye"}')
         await connection.close()
 
-    with running_station(station_data, "--token", TOKEN, "--config", str(config)) as station:
+    with running_station(station_data, "--token", TOKEN, "--config", str(config)) as station, OperatorFeed(station, TOKEN) as feed:
         session_id = asyncio.run(first_link(station.url))
+        feed.event("released", session_id, timeout=20)
         store = _store(station_data)
-        deadline = time.monotonic() + 20
-        while "released" not in [e["code"] for e in store.rows("events", session_id)]:
-            assert time.monotonic() < deadline, "the interrupted session was not released"
-            time.sleep(0.2)
+        committed(lambda: "released" in [e["code"] for e in store.rows("events", session_id)], "the release")
         assert has_summary(store.session(session_id)["mcap_path"])  # closed when released
         asyncio.run(second_link(station.url, session_id))
-        time.sleep(0.5)
+        feed.event("ended", session_id)
     try:
         session = store.session(session_id)
         assert session["status"] == "ended"

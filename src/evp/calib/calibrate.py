@@ -15,6 +15,7 @@ import numpy as np
 
 from evp.errors import CalibrationError
 from evp.types import CameraModel
+from evp.vision.images import to_grey
 
 SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
 
@@ -71,7 +72,7 @@ class CalibrationResult:
 
 def detect_board(image: np.ndarray, board: BoardSpec) -> tuple[np.ndarray, np.ndarray] | None:
     """(image points (N, 2), object points (N, 3)) of the board's corners, or None if not found."""
-    grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    grey = to_grey(image)
     if board.kind == "chessboard":
         found, corners = cv2.findChessboardCornersSB(grey, board.inner_corners, flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
         if not found:

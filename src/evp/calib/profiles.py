@@ -6,6 +6,7 @@ from importlib import resources
 from pathlib import Path
 
 from evp.calib.camera_files import read_camera
+from evp.config import CameraSettings
 from evp.errors import EvpError
 from evp.types import CameraModel
 
@@ -24,6 +25,16 @@ def load_profile(name: str) -> CameraModel:
     if not path.is_file():
         raise EvpError(f"unknown camera profile {name!r}; known: {', '.join(profile_names())}")
     return read_camera(path)
+
+
+def configured_camera(settings: CameraSettings) -> CameraModel | None:
+    """The calibration the settings name: their calibration file, else their profile; None when
+    they name neither (the caller falls back to the dataset's calibration or a default phone)."""
+    if settings.calibration_file is not None:
+        return read_camera(settings.calibration_file)
+    if settings.profile:
+        return load_profile(settings.profile)
+    return None
 
 
 def camera_from(spec: str) -> CameraModel:

@@ -204,13 +204,17 @@ def _num(value: float) -> str:
     return repr(float(value))
 
 
-def write_tum(path: str | Path, trajectory: Trajectory) -> None:
-    """TUM format at full float64 precision (needs timestamps)."""
+def tum_text(trajectory: Trajectory) -> str:
+    """The trajectory in TUM format at full float64 precision (needs timestamps), header line first."""
     if trajectory.timestamps is None:
         raise ValueError("TUM files need timestamps; this trajectory has none")
     rows = np.column_stack([trajectory.timestamps, trajectory.positions, trajectory.quats_xyzw])
-    text = "".join(" ".join(_num(v) for v in row) + "\n" for row in rows)
-    Path(path).write_text("# timestamp tx ty tz qx qy qz qw\n" + text)
+    return "# timestamp tx ty tz qx qy qz qw\n" + "".join(" ".join(_num(v) for v in row) + "\n" for row in rows)
+
+
+def write_tum(path: str | Path, trajectory: Trajectory) -> None:
+    """TUM file at full float64 precision (needs timestamps)."""
+    Path(path).write_text(tum_text(trajectory))
 
 
 def write_kitti(path: str | Path, trajectory: Trajectory) -> None:

@@ -37,7 +37,7 @@ from evp.station.protocol import (
     encode,
     encode_image,
 )
-from evp.types import Frame
+from evp.types import Frame, TrackingState
 
 READY_TIMEOUT_S = 120.0
 DRAIN_TIMEOUT_S = 60.0
@@ -85,7 +85,7 @@ class StreamReport:
 
     def summary(self) -> dict:
         latencies = np.array(list(self.latency_ms.values())) if self.latency_ms else np.zeros(1)
-        tracked = sum(1 for p in self.poses.values() if p.state in ("OK", "RELOCALIZED"))
+        tracked = sum(1 for p in self.poses.values() if TrackingState(p.state).tracked)
         return {
             "session_id": self.session_id,
             "frames_sent": self.frames_sent,

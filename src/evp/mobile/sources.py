@@ -76,6 +76,13 @@ def _dataset_items(dataset, max_frames: int | None, errors: list[DatasetError]) 
     return heapq.merge(frames, telemetry, key=lambda record: record.timestamp)
 
 
+def _first_frame_size(dataset, spec: str) -> tuple[int, int]:
+    first = next(iter(dataset.frames()), None)
+    if first is None:
+        raise EvpError(f"{spec}: no frame could be read")
+    return first.image.shape[1], first.image.shape[0]
+
+
 def open_source(spec: str, camera_spec: str | None = None, max_frames: int | None = None, fmt: str | None = None) -> StreamSource:
     """``camera:N`` (local camera N), an http(s)/rtsp URL (MJPEG, e.g. IP Webcam), else a dataset,
     recording or video file (format auto-detected as for ``evp run``)."""
@@ -85,10 +92,9 @@ def open_source(spec: str, camera_spec: str | None = None, max_frames: int | Non
 
     dataset = open_dataset(Path(spec), fmt)
     if camera_spec:
-        from evp.calib.profiles import camera_from
-
-        first = dataset.camera
-        camera = _camera_model(camera_spec, first.width, first.height) if first else camera_from(camera_spec)
+        # scaled to the images' size: the dataset's calibration's, else the first frame's (a video)
+        size = (dataset.camera.width, dataset.camera.height) if dataset.camera else _first_frame_size(dataset, spec)
+        camera = _camera_model(camera_spec, *size)
     elif dataset.camera is None:
         raise EvpError(f"{spec}: no calibration in the dataset; give --camera FILE or a profile name")
     else:

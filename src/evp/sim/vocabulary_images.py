@@ -25,6 +25,11 @@ class TrainingScene:
     scenario: str
     options: dict
 
+    @property
+    def label(self) -> str:
+        """How a vocabulary's notes name the scene it was trained on."""
+        return f"{self.scenario} {self.options}"
+
 
 TRAINING_SCENES = (
     TrainingScene("drone-flight", {"texture": "rich", "altitude_m": 60.0, "seed": 11}),
@@ -49,6 +54,5 @@ def training_images(frames_per_scene: int = 40, scenes: tuple[TrainingScene, ...
         renderer = Renderer(scenario.camera, scenario.scene)
         start, end = scenario.motion.start, scenario.motion.end
         span = end - start
-        label = f"{scene.scenario} {scene.options}"
         for index, t in enumerate(np.linspace(start + 0.05 * span, end - 0.05 * span, frames_per_scene)):
-            yield label, scenario.camera, render_frame(renderer, scenario, float(t), options, frame_seed=index)
+            yield scene.label, scenario.camera, render_frame(renderer, scenario, float(t), options, frame_seed=index)

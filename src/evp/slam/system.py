@@ -178,7 +178,7 @@ class SlamSystem(Estimator):
         stamps, poses = [], []
         with self.map.lock:
             for record in self.records:
-                if record.state not in (TrackingState.OK, TrackingState.RELOCALIZED):
+                if not record.state.tracked:
                     continue
                 T_ref = self._keyframe_pose(record.reference_kf)
                 if T_ref is None:

@@ -24,6 +24,7 @@ from scipy.spatial.transform import Rotation
 
 from evp.config import MavlinkSettings
 from evp.geometry.transforms import quat_xyzw_from_matrices, se3_inverse
+from evp.types import TrackingState
 
 os.environ.setdefault("MAVLINK20", "1")  # quality and reset_counter are MAVLink 2 extensions
 
@@ -32,7 +33,6 @@ MOUNTS = {
     "down": np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),  # image top towards the nose
     "forward": np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]),
 }
-TRACKED = ("OK", "RELOCALIZED")
 
 
 def mount_transform(settings: MavlinkSettings) -> np.ndarray:
@@ -122,7 +122,7 @@ class MavlinkOutput:
         """A new camera pose; a lost one stops the stream until tracking is back."""
         now = time.monotonic()
         with self._lock:
-            if state not in TRACKED:
+            if not TrackingState(state).tracked:
                 self._state = None
                 return
             T = body_pose_ned(T_world_cam, self.T_body_cam)

@@ -22,12 +22,9 @@ from evp.station.store import SessionStore
 
 def default_camera(settings: Settings) -> CameraConfig:
     """The camera the operator starts from: the settings' calibration, else seed 000's phone."""
-    from evp.calib.camera_files import read_camera
-    from evp.calib.profiles import load_profile
+    from evp.calib.profiles import configured_camera, load_profile
 
-    if settings.camera.calibration_file is not None:
-        return CameraConfig.from_camera(read_camera(settings.camera.calibration_file))
-    return CameraConfig.from_camera(load_profile(settings.camera.profile or "nexus5x_640x380"))
+    return CameraConfig.from_camera(configured_camera(settings.camera) or load_profile("nexus5x_640x380"))
 
 
 class Station:

@@ -17,5 +17,11 @@ def grey_image(frame: Frame, camera: CameraModel) -> np.ndarray:
         raise EvpError(f"frame {frame.index} at t={frame.timestamp}: empty image")
     if image.shape[0] != camera.height or image.shape[1] != camera.width:
         raise EvpError(f"frame {frame.index}: image is {image.shape[1]}x{image.shape[0]}, calibration is {camera.width}x{camera.height}")
+    return to_grey(image)
+
+
+def to_grey(image: np.ndarray) -> np.ndarray:
+    """8-bit grey version of a grey or BGR image (a grey uint8 image is returned as it is); other
+    depths are stretched to 0..255, since feature detectors and board finders take 8 bits only."""
     grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     return grey if grey.dtype == np.uint8 else cv2.normalize(grey, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)

@@ -19,6 +19,7 @@ import numpy as np
 from evp.estimator import Estimator
 from evp.geometry.transforms import se3
 from evp.types import CameraModel, Frame, PoseEstimate, TrackingState
+from evp.vision.images import to_grey
 from evp.vo.survey_adjustment import adjust_survey, tracks_from_matches
 
 EPIPOLAR_PIXELS = 3.0  # a match's distance from its epipolar line; Toledo's ATE is the same from 1.5 to 6
@@ -59,8 +60,7 @@ class NadirHomographyOdometry(Estimator):
         self._lost = False
 
     def _features(self, frame: Frame) -> tuple[np.ndarray, np.ndarray | None]:
-        grey = frame.image if frame.image.ndim == 2 else cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY)
-        keypoints, descriptors = self._detector.detectAndCompute(grey, None)
+        keypoints, descriptors = self._detector.detectAndCompute(to_grey(frame.image), None)
         return np.array([k.pt for k in keypoints]).reshape(-1, 2), descriptors
 
     def _candidates(self) -> list[int]:

@@ -30,9 +30,9 @@ from evp.config import Settings
 from evp.eval.evaluate import EvaluationOptions, evaluate
 from evp.eval.metrics import Alignment
 from evp.io.registry import open_dataset
-from evp.io.trajectory import Trajectory
 from evp.slam.local_mapping import LocalMapper, NewKeyFrame
 from evp.slam.system import SlamSystem
+from evp.trajectory import Trajectory
 from evp.types import PoseEstimate, TrackingState
 
 MOVING_AFTER_S = 1.5  # the rendered circle stands for 2 s

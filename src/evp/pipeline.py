@@ -19,7 +19,8 @@ from evp.config import Settings, write_settings
 from evp.errors import DatasetError, EvaluationError, EvpError
 from evp.estimator import Estimator, Refining, SelfCalibrating
 from evp.io.dataset import Dataset
-from evp.io.trajectory import Trajectory, write_trajectory
+from evp.io.trajectory import write_trajectory
+from evp.trajectory import Trajectory
 from evp.types import Frame, PoseEstimate, TrackingState
 
 if TYPE_CHECKING:

@@ -10,8 +10,8 @@ from evp.config import AlignmentSettings
 from evp.fusion.alignment import align_flight, horizontal_errors_after
 from evp.fusion.geodesy import EnuFrame
 from evp.fusion.gps_input import AlignmentError, GpsTrack, clean_gps
-from evp.io.trajectory import Trajectory
 from evp.sim.scenarios import SimOptions, build_scenario
+from evp.trajectory import Trajectory
 from evp.types import GpsFix
 
 FRAME = EnuFrame(43.72, 10.40, 4.0)

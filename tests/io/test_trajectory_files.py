@@ -3,13 +3,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from evp.errors import TrajectoryFormatError
-from evp.io.trajectory import (
-    Trajectory,
-    TrajectoryFormat,
-    detect_trajectory_format,
-    read_trajectory,
-    write_trajectory,
-)
+from evp.io.trajectory import TrajectoryFormat, detect_trajectory_format, read_trajectory, write_trajectory
+from evp.trajectory import Trajectory
 
 
 def _random_trajectory(n=50, seed=0):

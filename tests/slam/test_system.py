@@ -13,7 +13,6 @@ from evp.eval.evaluate import EvaluationOptions, evaluate
 from evp.eval.metrics import Alignment
 from evp.geometry.transforms import se3_inverse
 from evp.io.registry import open_dataset
-from evp.io.trajectory import Trajectory
 from evp.sim.generate import EPOCH_S, generate
 from evp.sim.scenarios import SimOptions, build_scenario
 from evp.sim.world import Renderer
@@ -22,6 +21,7 @@ from evp.slam.loop_closing import GraphCorrection
 from evp.slam.map import Map
 from evp.slam.system import SlamSystem
 from evp.slam.trials import cover_lens_then_revisit, relocalisation_error
+from evp.trajectory import Trajectory
 from evp.types import Frame, TrackingState
 
 # seed 000's indoor circle, noise-free: no sensor noise, blur, exposure change or distortion

@@ -14,7 +14,7 @@ from evp.fusion.alignment import AlignmentResult, align_flight, alignment_window
 from evp.fusion.gps_input import AlignmentError, GpsTrack, clean_gps
 from evp.fusion.gps_monitor import GpsMonitor
 from evp.io.dataset import Dataset
-from evp.io.trajectory import Trajectory
+from evp.trajectory import Trajectory
 
 NEAR_TARGET_M = 2.0  # seed 002's subset: |z - target| < 2 m
 

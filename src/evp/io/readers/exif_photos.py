@@ -19,7 +19,7 @@ from PIL import Image, UnidentifiedImageError
 from evp.calib.camera_files import read_camera
 from evp.errors import DatasetError
 from evp.io.dataset import Dataset, image_file_frames
-from evp.io.trajectory import Trajectory
+from evp.trajectory import Trajectory
 from evp.types import CameraModel, GpsFix
 
 GPS_IFD = 0x8825

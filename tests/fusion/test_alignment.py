@@ -7,8 +7,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from evp.config import AlignmentSettings
-from evp.fusion.alignment import align_flight, horizontal_errors_after
 from evp.fusion.geodesy import EnuFrame
+from evp.fusion.gps_alignment import align_flight, horizontal_errors_after
 from evp.fusion.gps_input import AlignmentError, GpsTrack, clean_gps
 from evp.sim.scenarios import SimOptions, build_scenario
 from evp.trajectory import Trajectory

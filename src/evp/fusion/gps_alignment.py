@@ -16,7 +16,7 @@ import numpy as np
 
 from evp.config import AlignmentSettings
 from evp.fusion.gps_input import AlignmentError, GpsTrack
-from evp.fusion.transforms import MODELS, OdomToEnu, fit_transform
+from evp.fusion.odometry_to_enu import MODELS, OdomToEnu, fit_transform
 from evp.geometry.alignment import umeyama
 from evp.trajectory import Trajectory
 

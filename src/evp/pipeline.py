@@ -19,6 +19,7 @@ from evp.config import Settings, write_settings
 from evp.errors import DatasetError, EvaluationError, EvpError
 from evp.estimator import Estimator, Refining, SelfCalibrating
 from evp.io.dataset import Dataset
+from evp.io.map_files import save_map, write_map_ply
 from evp.io.trajectory import write_trajectory
 from evp.trajectory import Trajectory
 from evp.types import Frame, PoseEstimate, TrackingState
@@ -214,8 +215,8 @@ def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: 
     if result.slam is not None:
         stamps, poses = result.slam.keyframe_trajectory()
         write_trajectory(out / "keyframes.tum", Trajectory.from_poses(poses, stamps, "keyframes"))
-        result.slam.map.write_ply(out / "map.ply")
-        result.slam.map.save(out / "map.npz")
+        write_map_ply(result.slam.map, out / "map.ply")
+        save_map(result.slam.map, out / "map.npz")
     with (out / "states.csv").open("w") as handle:
         handle.write("timestamp,state,quality\n")
         for e in result.estimates:

@@ -8,10 +8,10 @@ import itertools
 import pytest
 
 from evp.config import OrbSettings, Settings, SlamSettings
+from evp.io.map_files import load_map, save_map
 from evp.io.registry import open_dataset
 from evp.pipeline import run_dataset, write_outputs
 from evp.run_setup import camera_for, make_estimator
-from evp.slam.map import Map
 from evp.slam.system import SlamSystem
 from evp.slam.trials import cover_lens_then_revisit, relocalisation_error
 from evp.types import TrackingState
@@ -62,6 +62,6 @@ def test_mapping_worker_thread_on_real_images(euroc_start, tmp_path):
     # timing: under load 0-10 of the 31 earliest frames went unlocalised over 20 runs
     assert sum(frame.timestamp in refined for frame in frames[:start]) >= start // 2
     assert len(slam.mapping_ms) >= 5 and slam.mapping.max_queue <= 2
-    slam.map.save(tmp_path / "map.npz")
-    loaded = Map.load(tmp_path / "map.npz", slam.extractor.scale_factors)
+    save_map(slam.map, tmp_path / "map.npz")
+    loaded = load_map(tmp_path / "map.npz", slam.extractor.scale_factors)
     assert len(loaded.keyframes) == len(slam.map.keyframes) and len(loaded.points) == len(slam.map.points)

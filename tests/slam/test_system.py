@@ -12,6 +12,7 @@ from evp.errors import EvpError
 from evp.eval.evaluate import EvaluationOptions, evaluate
 from evp.eval.metrics import Alignment
 from evp.geometry.transforms import se3_inverse
+from evp.io.map_files import load_map, save_map, write_map_ply
 from evp.io.registry import open_dataset
 from evp.sim.generate import EPOCH_S, generate
 from evp.sim.scenarios import SimOptions, build_scenario
@@ -59,11 +60,11 @@ def test_noise_free_tracking_has_near_zero_error(circle, tmp_path):
     stamps, poses = slam.refined_trajectory()
     assert len(stamps) >= tracked
     # the map survives a save/load round trip and exports as a point cloud
-    slam.map.save(tmp_path / "map.npz")
-    loaded = Map.load(tmp_path / "map.npz", slam.extractor.scale_factors)
+    save_map(slam.map, tmp_path / "map.npz")
+    loaded = load_map(tmp_path / "map.npz", slam.extractor.scale_factors)
     assert set(loaded.keyframes) == set(slam.map.keyframes) and len(loaded.points) == len(slam.map.points)
     assert np.allclose(loaded.points[next(iter(loaded.points))].position, slam.map.points[next(iter(loaded.points))].position)
-    slam.map.write_ply(tmp_path / "map.ply")
+    write_map_ply(slam.map, tmp_path / "map.ply")
     assert f"element vertex {len(slam.map.points)}" in (tmp_path / "map.ply").read_text()
 
 

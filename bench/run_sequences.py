@@ -69,13 +69,16 @@ def _row(name: str, path: Path, settings: Settings, out: Path) -> str:
 
 def _relocalisation(path: Path) -> str:
     """Map the first 150 frames, cover the lens for 3, show frames 100-119 again."""
+    from evp.io.vocabulary_files import load_configured_vocabulary
     from evp.slam.system import SlamSystem
     from evp.slam.trials import cover_lens_then_revisit, relocalisation_error
 
     dataset = open_dataset(path)
     frames = list(itertools.islice(dataset.frames(), 150))
     settings = Settings()
-    first, again = cover_lens_then_revisit(SlamSystem(dataset.camera, settings.orb, settings.slam), frames, 150, slice(100, 120))
+    first, again = cover_lens_then_revisit(
+        SlamSystem(dataset.camera, settings.orb, settings.slam, vocabulary=load_configured_vocabulary(settings.slam.vocabulary)), frames, 150, slice(100, 120)
+    )
     result = relocalisation_error(first, again, slice(100, 120))
     if result is None:
         return f"| {path.name} | not relocalised in 20 frames | | |"

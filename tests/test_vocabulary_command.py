@@ -4,7 +4,7 @@ own from recordings, and a bad vocabulary is a clear error before any frame is p
 import numpy as np
 
 from evp.config import OrbSettings
-from evp.vision.vocabulary import Vocabulary, default_vocabulary_path
+from evp.io.vocabulary_files import default_vocabulary_path, load_vocabulary
 from evp.vocabulary_training import build_vocabulary, rendered_descriptors
 from tests.conftest import SAMPLE
 from tests.test_cli import evp
@@ -15,7 +15,7 @@ def test_the_shipped_vocabulary_is_the_one_evp_builds_from_its_renders():
     renders and the extractor are deterministic). Retrain it when the extractor changes."""
     sets, sources = rendered_descriptors(40, OrbSettings())
     built = build_vocabulary(sets, sources, 10, 4, OrbSettings())
-    shipped = Vocabulary.load(default_vocabulary_path())
+    shipped = load_vocabulary(default_vocabulary_path())
     assert np.array_equal(built.centres, shipped.centres) and np.array_equal(built.children, shipped.children)
     assert np.allclose(built.idf, shipped.idf)
     assert shipped.notes["trained_on"] == sources and shipped.notes["orb"] == OrbSettings().model_dump()
@@ -24,7 +24,7 @@ def test_the_shipped_vocabulary_is_the_one_evp_builds_from_its_renders():
 def test_a_vocabulary_from_a_recording_and_its_description(tmp_path):
     result = evp("vocabulary", "build", SAMPLE, "--every", "10", "--depth", "2", "--out", tmp_path / "v.npz")
     assert result.returncode == 0, result.stderr
-    vocabulary = Vocabulary.load(tmp_path / "v.npz")
+    vocabulary = load_vocabulary(tmp_path / "v.npz")
     assert 10 < vocabulary.n_words <= 100 and vocabulary.notes["images"] == 9  # frames 0, 10, ..., 80
     shown = evp("vocabulary", "info", tmp_path / "v.npz")
     assert shown.returncode == 0 and f"{vocabulary.n_words} words, 10 branches x 2 levels" in shown.stdout

@@ -468,6 +468,7 @@ def vocabulary_build(
     from rich.progress import Progress
 
     from evp.config import load_settings
+    from evp.io.vocabulary_files import save_vocabulary
     from evp.vocabulary_training import build_vocabulary, dataset_descriptors, rendered_descriptors
 
     orb = load_settings(config).orb
@@ -478,17 +479,17 @@ def vocabulary_build(
         nodes = progress.add_task(f"clustering {sum(len(d) for d in sets)} descriptors", total=None)
         vocabulary = build_vocabulary(sets, names, branching, depth, orb, lambda done, total: progress.update(nodes, completed=done, total=total))
     out.parent.mkdir(parents=True, exist_ok=True)
-    vocabulary.save(out)
+    save_vocabulary(vocabulary, out)
     typer.echo(f"{out}: {vocabulary.n_words} words from {len(sets)} images ({vocabulary.notes['descriptors']} descriptors)")
 
 
 @vocabulary_app.command("info")
 def vocabulary_info(path: Path | None = typer.Argument(None, help="Vocabulary file (default: the one shipped with EVP).")) -> None:
     """What a vocabulary is: words, tree shape, what it was trained on."""
-    from evp.vision.vocabulary import Vocabulary, default_vocabulary_path
+    from evp.io.vocabulary_files import default_vocabulary_path, load_vocabulary
 
     path = path or default_vocabulary_path()
-    vocabulary = Vocabulary.load(path)
+    vocabulary = load_vocabulary(path)
     notes = vocabulary.notes
     typer.echo(f"{path}: {vocabulary.n_words} words, {vocabulary.branching} branches x {vocabulary.depth} levels")
     if notes:

@@ -10,12 +10,15 @@ import pytest
 from evp.config import OrbSettings, Settings, SlamSettings
 from evp.io.map_files import load_map, save_map
 from evp.io.registry import open_dataset
+from evp.io.vocabulary_files import default_vocabulary_path, load_vocabulary
 from evp.pipeline import run_dataset, write_outputs
 from evp.run_setup import camera_for, make_estimator
 from evp.slam.system import SlamSystem
 from evp.slam.trials import cover_lens_then_revisit, relocalisation_error
 from evp.types import TrackingState
 from tests.conftest import shared
+
+VOCABULARY = load_vocabulary(default_vocabulary_path())
 
 
 @pytest.mark.parametrize(("sequence", "max_ate_m", "min_tracked"), [("euroc_mh_01_easy_moving_360", 0.0075, 0.98), ("kitti_odom_06_f000-050", 0.10, 0.95)])
@@ -38,7 +41,7 @@ def euroc_start():
 
 def test_relocalises_on_real_images(euroc_start):
     dataset, frames = euroc_start
-    slam = SlamSystem(dataset.camera, OrbSettings(), SlamSettings())
+    slam = SlamSystem(dataset.camera, OrbSettings(), SlamSettings(), vocabulary=VOCABULARY)
     first, again = cover_lens_then_revisit(slam, frames, 150, slice(100, 120))
     assert TrackingState.RELOCALIZED in [e.tracking_state for e in again]
     index, distance, angle = relocalisation_error(first, again, slice(100, 120))
@@ -49,7 +52,7 @@ def test_relocalises_on_real_images(euroc_start):
 def test_mapping_worker_thread_on_real_images(euroc_start, tmp_path):
     """The live configuration: local mapping in its own thread, fed by the keyframe queue."""
     dataset, frames = euroc_start
-    slam = SlamSystem(dataset.camera, OrbSettings(), SlamSettings(mapping="thread"))
+    slam = SlamSystem(dataset.camera, OrbSettings(), SlamSettings(mapping="thread"), vocabulary=VOCABULARY)
     states = [slam.feed(frame).tracking_state for frame in frames]
     slam.finish()
     start = states.index(TrackingState.OK)  # 3 degrees of parallax: 1.5 s in

@@ -14,6 +14,7 @@ from evp.eval.metrics import Alignment
 from evp.geometry.transforms import se3_inverse
 from evp.io.map_files import load_map, save_map, write_map_ply
 from evp.io.registry import open_dataset
+from evp.io.vocabulary_files import default_vocabulary_path, load_vocabulary
 from evp.sim.generate import EPOCH_S, generate
 from evp.sim.scenarios import SimOptions, build_scenario
 from evp.sim.world import Renderer
@@ -24,6 +25,8 @@ from evp.slam.system import SlamSystem
 from evp.slam.trials import cover_lens_then_revisit, relocalisation_error
 from evp.trajectory import Trajectory
 from evp.types import Frame, TrackingState
+
+VOCABULARY = load_vocabulary(default_vocabulary_path())
 
 # seed 000's indoor circle, noise-free: no sensor noise, blur, exposure change or distortion
 CIRCLE = SimOptions(duration_s=9.0, fps=15.0, seed=4, noise_sigma=0.0, exposure_s=0.0, gain_variation=0.0, distortion=False, image_format="png")
@@ -38,7 +41,7 @@ def circle(tmp_path_factory):
 
 
 def _system(dataset):
-    return SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline"))
+    return SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline"), vocabulary=VOCABULARY)
 
 
 def _ate(dataset, slam: SlamSystem) -> float:
@@ -85,7 +88,9 @@ def test_new_points_are_seen_with_the_configured_parallax(circle, monkeypatch, m
             parallaxes.append(np.degrees(np.arccos(a @ b / np.linalg.norm(a) / np.linalg.norm(b))))
 
     monkeypatch.setattr(LocalMapper, "_triangulate_with", recording)
-    slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline", new_point_min_parallax_deg=min_parallax_deg))
+    slam = SlamSystem(
+        dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline", new_point_min_parallax_deg=min_parallax_deg), vocabulary=VOCABULARY
+    )
     for frame in frames[:80]:
         slam.feed(frame)
     slam.finish()
@@ -101,7 +106,7 @@ def test_the_frames_before_a_late_start_are_localised_in_the_refined_trajectory(
     the refined trajectory localises them against the final map (unless switched off)."""
     dataset, frames = circle
     settings = SlamSettings(mapping="inline", init_min_parallax_deg=3.0, start_backfill_frames=backfill)
-    slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), settings)
+    slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), settings, vocabulary=VOCABULARY)
     live = [slam.feed(frame).tracking_state for frame in frames]
     slam.finish()
     start = live.index(TrackingState.OK)
@@ -120,7 +125,7 @@ def test_blank_frames_before_the_start_stay_without_a_pose(circle):
     """A covered lens while the start waits: those frames have no features to localise, the
     others before the start still get their poses."""
     dataset, frames = circle
-    slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline", init_min_parallax_deg=3.0))
+    slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline", init_min_parallax_deg=3.0), vocabulary=VOCABULARY)
     blank = np.full_like(frames[0].image, 128)
     covered = {3, 4, 5}
     for k, frame in enumerate(frames):
@@ -192,7 +197,7 @@ def test_a_start_lost_within_a_few_keyframes_is_discarded_and_initialised_again(
     drone's climb: 64 points, lost at once, never relocalised). A larger map is kept (the test
     above)."""
     dataset, frames = circle
-    slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping=mapping))
+    slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping=mapping), vocabulary=VOCABULARY)
     states = []
     for frame in frames:
         states.append(slam.feed(frame).tracking_state)
@@ -297,7 +302,7 @@ def test_closes_the_loop_when_the_circle_comes_round(tmp_path, monkeypatch):
     dataset = open_dataset(tmp_path)
     ate = {}
     for loop_closing in (True, False):
-        slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline", loop_closing=loop_closing))
+        slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline", loop_closing=loop_closing), vocabulary=VOCABULARY)
         for frame in dataset.frames():
             slam.feed(frame)
         slam.finish()

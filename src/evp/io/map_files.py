@@ -18,7 +18,9 @@ MAP_FORMAT_VERSION = 2  # 2: keyframes carry bag-of-words vectors (1: thumbnails
 def write_map_ply(slam_map: Map, path: Path) -> None:
     """The map points as an ASCII PLY point cloud."""
     _, positions = slam_map.point_array()
-    header = f"ply\nformat ascii 1.0\ncomment EVP map points\nelement vertex {len(positions)}\nproperty double x\nproperty double y\nproperty double z\nend_header\n"
+    header = (
+        f"ply\nformat ascii 1.0\ncomment EVP map points\nelement vertex {len(positions)}\nproperty double x\nproperty double y\nproperty double z\nend_header\n"
+    )
     with Path(path).open("w") as handle:
         handle.write(header)
         np.savetxt(handle, positions, fmt="%.9g")

@@ -3,7 +3,7 @@
 
 Usage: python bench/run_sequences.py [--out runs/bench] [--estimator auto|slam|klt-vo] [--only NAME ...]
 
-Also: relocalisation on EuRoC MH01 after a forced loss (`evp.slam.trials`).
+Also: relocalisation on EuRoC MH01 after a forced loss (`tests/slam/relocalisation_trials.py`).
 
 Speed is reported as measured in the same run: tracking ms/frame (median, p95; for SLAM without
 the inline mapping, which is listed apart) and its ratio to OpenCV's own ORB (same feature count)
@@ -71,7 +71,9 @@ def _relocalisation(path: Path) -> str:
     """Map the first 150 frames, cover the lens for 3, show frames 100-119 again."""
     from evp.io.vocabulary_files import load_configured_vocabulary
     from evp.slam.system import SlamSystem
-    from evp.slam.trials import cover_lens_then_revisit, relocalisation_error
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the relocalisation trials the tests use
+    from tests.slam.relocalisation_trials import cover_lens_then_revisit, relocalisation_error
 
     dataset = open_dataset(path)
     frames = list(itertools.islice(dataset.frames(), 150))

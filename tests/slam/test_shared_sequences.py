@@ -14,9 +14,9 @@ from evp.io.vocabulary_files import default_vocabulary_path, load_vocabulary
 from evp.pipeline import run_dataset, write_outputs
 from evp.run_setup import camera_for, make_estimator
 from evp.slam.system import SlamSystem
-from evp.slam.trials import cover_lens_then_revisit, relocalisation_error
 from evp.types import TrackingState
 from tests.conftest import shared
+from tests.slam.relocalisation_trials import cover_lens_then_revisit, relocalisation_error
 
 VOCABULARY = load_vocabulary(default_vocabulary_path())
 

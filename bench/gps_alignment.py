@@ -75,7 +75,7 @@ def model_track_row(name: str, duration: float, altitude: float, drift_fraction:
     from evp.fusion.gps_input import clean_gps
     from evp.sim import sensors
     from evp.sim.scenarios import build_scenario
-    from evp.trajectory import Trajectory
+    from evp.types import Trajectory
 
     speed = 4.0 + (ord(name) % 5)
     options = SimOptions(duration_s=duration, altitude_m=altitude, speed_m_s=speed, relief=False, seed=ord(name))

@@ -33,8 +33,7 @@ from evp.io.registry import open_dataset
 from evp.io.vocabulary_files import load_configured_vocabulary
 from evp.slam.local_mapping import LocalMapper, NewKeyFrame
 from evp.slam.system import SlamSystem
-from evp.trajectory import Trajectory
-from evp.types import PoseEstimate, TrackingState
+from evp.types import PoseEstimate, TrackingState, Trajectory
 
 MOVING_AFTER_S = 1.5  # the rendered circle stands for 2 s
 MAPPING_S = (0.100, 0.233)  # the mapping thread's time per keyframe on the live circle, this machine

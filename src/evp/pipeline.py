@@ -21,8 +21,7 @@ from evp.estimator import Estimator, Refining, SelfCalibrating
 from evp.io.dataset import Dataset
 from evp.io.map_files import save_map, write_map_ply
 from evp.io.trajectory import write_trajectory
-from evp.trajectory import Trajectory
-from evp.types import Frame, PoseEstimate, TrackingState
+from evp.types import Frame, PoseEstimate, TrackingState, Trajectory
 
 if TYPE_CHECKING:
     from evp.slam.system import SlamSystem

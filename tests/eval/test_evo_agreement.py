@@ -11,7 +11,7 @@ from evo.core.trajectory import PoseTrajectory3D  # noqa: E402
 
 from evp.eval.cli_support import run_evaluation  # noqa: E402
 from evp.io.trajectory import write_trajectory  # noqa: E402
-from evp.trajectory import Trajectory  # noqa: E402
+from evp.types import Trajectory  # noqa: E402
 from tests.conftest import shared  # noqa: E402
 
 TOL = 1e-6

@@ -11,8 +11,7 @@ from evp.fusion.geodesy import EnuFrame
 from evp.fusion.gps_alignment import align_flight, horizontal_errors_after
 from evp.fusion.gps_input import AlignmentError, GpsTrack, clean_gps
 from evp.sim.scenarios import SimOptions, build_scenario
-from evp.trajectory import Trajectory
-from evp.types import GpsFix
+from evp.types import GpsFix, Trajectory
 
 FRAME = EnuFrame(43.72, 10.40, 4.0)
 

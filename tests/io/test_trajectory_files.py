@@ -4,7 +4,7 @@ from scipy.spatial.transform import Rotation
 
 from evp.errors import TrajectoryFormatError
 from evp.io.trajectory import TrajectoryFormat, detect_trajectory_format, read_trajectory, write_trajectory
-from evp.trajectory import Trajectory
+from evp.types import Trajectory
 
 
 def _random_trajectory(n=50, seed=0):

@@ -22,8 +22,7 @@ from evp.slam.local_mapping import LocalMapper
 from evp.slam.loop_closing import GraphCorrection
 from evp.slam.map import Map
 from evp.slam.system import SlamSystem
-from evp.trajectory import Trajectory
-from evp.types import Frame, TrackingState
+from evp.types import Frame, TrackingState, Trajectory
 from tests.slam.relocalisation_trials import cover_lens_then_revisit, relocalisation_error
 
 VOCABULARY = load_vocabulary(default_vocabulary_path())

@@ -10,7 +10,7 @@ from evp.errors import EvaluationError, EvpError
 from evp.eval.evaluate import EvaluationOptions, EvaluationResult, evaluate
 from evp.eval.metrics import Alignment, DeltaUnit
 from evp.io.trajectory import read_timestamps, read_trajectory
-from evp.trajectory import Trajectory
+from evp.types import Trajectory
 
 
 def _stamped(trajectory: Trajectory, times: Path | None, other: Trajectory, label: str) -> Trajectory:

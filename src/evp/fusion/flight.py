@@ -13,8 +13,7 @@ from evp.config import AlignmentSettings, MonitorSettings
 from evp.fusion.gps_alignment import AlignmentResult, align_flight, alignment_window, horizontal_errors_after, resample
 from evp.fusion.gps_input import AlignmentError, GpsTrack, clean_gps
 from evp.fusion.gps_monitor import GpsMonitor
-from evp.trajectory import Trajectory
-from evp.types import BaroSample, GpsFix
+from evp.types import BaroSample, GpsFix, Trajectory
 
 NEAR_TARGET_M = 2.0  # seed 002's subset: |z - target| < 2 m
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from evp.errors import TrajectoryFormatError
-from evp.trajectory import Trajectory
+from evp.types import Trajectory
 
 
 class TrajectoryFormat(enum.Enum):

@@ -23,7 +23,7 @@ from evp.sim import sensors
 from evp.sim.camera_effects import render_frame
 from evp.sim.scenarios import Scenario, SimOptions, build_scenario
 from evp.sim.world import Renderer, ray_distance
-from evp.trajectory import Trajectory
+from evp.types import Trajectory
 
 EPOCH_S = 1_700_000_000  # simulated clocks start here (2023-11-14), like real sensor clocks
 IMAGE_PARAMS = {"png": [cv2.IMWRITE_PNG_COMPRESSION, 1], "jpg": [cv2.IMWRITE_JPEG_QUALITY, 95]}

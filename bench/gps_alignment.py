@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import shutil
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -29,10 +30,10 @@ import numpy as np
 from results import Results
 
 from evp.config import AlignmentSettings, MonitorSettings, Settings
+from evp.eval.flight_report import flight_summary
 from evp.eval.statistics import error_statistics
-from evp.fusion.alignment import resample
 from evp.fusion.flight import process_flight
-from evp.fusion.monitor_trials import drifting_track, first, monitor_run
+from evp.fusion.gps_alignment import resample
 from evp.io.registry import open_dataset
 from evp.io.trajectory import read_trajectory
 from evp.pipeline import run_dataset
@@ -40,6 +41,9 @@ from evp.run_setup import make_estimator
 from evp.sim.generate import generate
 from evp.sim.scenarios import SimOptions
 from evp.sim.sensors import GpsConfig
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the monitor trials the tests use
+from tests.fusion.monitor_trials import drifting_track, first, monitor_run  # noqa: E402
 
 # seed 002, Table I: duration (s), target altitude (m); speed 4-8 m/s
 TABLE_I = {"A": (325, 81), "B": (356, 61), "C": (388, 31), "D": (103, 109), "E": (269, 81), "F": (192, 83), "G": (210, 30)}
@@ -81,14 +85,14 @@ def flight_record(name: str, duration: float, altitude: float, workdir: Path) ->
     segments = run_dataset(dataset, make_estimator(dataset.camera, Settings(), dataset)).segments()
     at_altitude = duration - 2 * altitude / 3.0  # climb and descent at 3 m/s
     window = min(70.0, 0.5 * at_altitude)  # the paper's 70 s, shortened for short flights (D: 103 s at 109 m)
-    result = process_flight(dataset, segments, AlignmentSettings(target_altitude_m=altitude + 0.3, window_s=window), MonitorSettings())
+    result = process_flight(dataset.gps, dataset.baro, segments, AlignmentSettings(target_altitude_m=altitude + 0.3, window_s=window), MonitorSettings())
     truth = read_trajectory(data / "groundtruth_cam0_tum.txt")
     after = result.alignment.aligned.timestamps > result.alignment.window[1] - result.alignment.clock_offset_s
     true_xy, ok = resample(truth, result.alignment.aligned.timestamps[after], 1.0)
     errors = np.linalg.norm(result.alignment.aligned.positions[after][ok, :2] - true_xy[ok, :2], axis=1)
     near = np.abs(result.alignment.aligned.positions[after][ok, 2] - altitude) < 2.0
     vs_truth = error_statistics(errors[near]) if near.any() else {"mean": float("nan"), "max": float("nan")}
-    vs_gps = result.summary()
+    vs_gps = flight_summary(result)
     tracked = len(result.alignment.aligned) / max(1, dataset.num_frames)
     near_gps = vs_gps["near_target_altitude"] or {"mean": float("nan"), "max": float("nan")}
     return {
@@ -113,12 +117,12 @@ def model_track_record(name: str, duration: float, altitude: float, drift_fracti
     own accuracy."""
     from scipy.spatial.transform import Rotation
 
-    from evp.fusion.alignment import align_flight
     from evp.fusion.geodesy import EnuFrame
+    from evp.fusion.gps_alignment import align_flight
     from evp.fusion.gps_input import clean_gps
-    from evp.io.trajectory import Trajectory
     from evp.sim import sensors
     from evp.sim.scenarios import build_scenario
+    from evp.types import Trajectory
 
     speed = 4.0 + (ord(name) % 5)
     options = SimOptions(duration_s=duration, altitude_m=altitude, speed_m_s=speed, relief=False, seed=ord(name))

@@ -32,10 +32,10 @@ from evp.config import Settings
 from evp.eval.evaluate import EvaluationOptions, evaluate
 from evp.eval.metrics import Alignment
 from evp.io.registry import open_dataset
-from evp.io.trajectory import Trajectory
+from evp.io.vocabulary_files import load_configured_vocabulary
 from evp.slam.local_mapping import LocalMapper, NewKeyFrame
 from evp.slam.system import SlamSystem
-from evp.types import PoseEstimate, TrackingState
+from evp.types import PoseEstimate, TrackingState, Trajectory
 
 MOVING_AFTER_S = 1.5  # the rendered circle stands for 2 s
 MAPPING_S = (0.100, 0.233)  # the mapping thread's time per keyframe on the live circle, this machine
@@ -103,7 +103,9 @@ def _busy_frames_range(frames) -> tuple[int, int]:
 
 
 def _trial(dataset, frames, seed: int, settings: Settings) -> tuple[int, int, float, float]:
-    slam = SlamSystem(dataset.camera, settings.orb, settings.slam.model_copy(update={"mapping": "inline"}))
+    slam = SlamSystem(
+        dataset.camera, settings.orb, settings.slam.model_copy(update={"mapping": "inline"}), vocabulary=load_configured_vocabulary(settings.slam.vocabulary)
+    )
     slam.mapping = LaggedMapping(slam.mapping.mapper, seed, _busy_frames_range(frames))
     tracked, ate, drift = drift_of_final_map_poses(dataset, [slam.feed(frame) for frame in frames])
     return len(slam.map.keyframes), tracked, ate, drift

@@ -26,10 +26,11 @@ from results import Results
 
 from evp.config import OrbSettings
 from evp.io.registry import open_dataset
+from evp.io.vocabulary_files import default_vocabulary_path, load_vocabulary
 from evp.types import CameraModel
 from evp.vision.images import grey_image
 from evp.vision.orb import OrbExtractor
-from evp.vision.vocabulary import Vocabulary, bow_score, default_vocabulary_path, train_vocabulary
+from evp.vision.vocabulary import bow_score, train_vocabulary
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 SEQUENCES = ["euroc_mh_01_easy_moving_360", "kitti_odom_06_f000-050", "davis_slider_depth", "aerial_nadir_odm_toledo_fc350"]
@@ -104,7 +105,7 @@ def main() -> None:
         images[name] = frames
         extractors[name] = OrbExtractor(OrbSettings(), camera)
         print(f"read {name}: {len(frames)} frames", file=sys.stderr)
-    shipped = Vocabulary.load(default_vocabulary_path())
+    shipped = load_vocabulary(default_vocabulary_path())
     command = f"python bench/place_recognition.py {' '.join(sys.argv[1:])}".rstrip()
     print(f"command: {command}")
     print()

@@ -8,6 +8,7 @@ lens (first 150 frames mapped, 3 frames black, frames 100-119 shown again), and 
 26 s, one lap, rendered by `evp sim`) with the light VO as well.
 
 Usage: python bench/run_sequences.py [--out runs/bench] [--estimator auto|slam|klt-vo] [--only SEQ ...] [--set SECTION.KEY=VALUE ...] [--circle-seeds N ...]
+Also: relocalisation on EuRoC MH01 after a forced loss (`tests/slam/relocalisation_trials.py`).
 
 Prints one Markdown row per sequence: ATE (Sim3-aligned RMSE, m; against GPS for the Toledo
 photos) and as a share of the path, frames tracked in trajectory.tum and answered live, frames to
@@ -103,13 +104,18 @@ def _record(name: str, path: Path, settings: Settings, out: Path) -> dict:
 
 def _relocalisation(path: Path) -> dict:
     """Map the first 150 frames, cover the lens for 3, show frames 100-119 again."""
+    from evp.io.vocabulary_files import load_configured_vocabulary
     from evp.slam.system import SlamSystem
-    from evp.slam.trials import cover_lens_then_revisit, relocalisation_error
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the relocalisation trials the tests use
+    from tests.slam.relocalisation_trials import cover_lens_then_revisit, relocalisation_error
 
     dataset = open_dataset(path)
     frames = list(itertools.islice(dataset.frames(), 150))
     settings = Settings()
-    first, again = cover_lens_then_revisit(SlamSystem(dataset.camera, settings.orb, settings.slam), frames, 150, slice(100, 120))
+    first, again = cover_lens_then_revisit(
+        SlamSystem(dataset.camera, settings.orb, settings.slam, vocabulary=load_configured_vocabulary(settings.slam.vocabulary)), frames, 150, slice(100, 120)
+    )
     result = relocalisation_error(first, again, slice(100, 120))
     if result is None:
         return {"sequence": path.name, "frames_to_relocalise": "not relocalised in 20", "position_error": None, "rotation_error_deg": None}

@@ -47,7 +47,8 @@ def test_eval_contract_json_and_report(tmp_path):
     # a slightly noisy, scaled, shifted copy
     import numpy as np
 
-    from evp.io.trajectory import Trajectory, write_trajectory
+    from evp.io.trajectory import write_trajectory
+    from evp.types import Trajectory
 
     rng = np.random.default_rng(0)
     est = Trajectory(2.0 * truth.positions + [1, 2, 3] + rng.normal(0, 0.002, truth.positions.shape), truth.quats_xyzw, truth.timestamps)

@@ -4,8 +4,8 @@ own from recordings, and a bad vocabulary is a clear error before any frame is p
 import numpy as np
 
 from evp.config import OrbSettings
+from evp.io.vocabulary_files import default_vocabulary_path, load_vocabulary
 from evp.sim.vocabulary_images import TRAINING_SCENES
-from evp.vision.vocabulary import Vocabulary, default_vocabulary_path
 from evp.vocabulary_training import build_vocabulary, rendered_descriptors
 from tests.conftest import SAMPLE
 from tests.test_cli import evp
@@ -17,7 +17,7 @@ def test_the_shipped_vocabulary_is_built_from_evps_renders_by_a_deterministic_bu
     ``bench/shipped_vocabulary.py`` compares it word for word (run it, and retrain, when the
     extractor or the renderer changes); here the same path on one small scene builds the same
     vocabulary twice."""
-    shipped = Vocabulary.load(default_vocabulary_path())
+    shipped = load_vocabulary(default_vocabulary_path())
     assert shipped.notes["trained_on"] == [scene.label for scene in TRAINING_SCENES]
     assert shipped.notes["orb"] == OrbSettings().model_dump() and shipped.notes["images"] == 40 * len(TRAINING_SCENES)
     room = next(scene for scene in TRAINING_SCENES if scene.scenario == "wheel-robot-room")
@@ -32,7 +32,7 @@ def test_the_shipped_vocabulary_is_built_from_evps_renders_by_a_deterministic_bu
 def test_a_vocabulary_from_a_recording_and_its_description(tmp_path):
     result = evp("vocabulary", "build", SAMPLE, "--every", "10", "--depth", "2", "--out", tmp_path / "v.npz")
     assert result.returncode == 0, result.stderr
-    vocabulary = Vocabulary.load(tmp_path / "v.npz")
+    vocabulary = load_vocabulary(tmp_path / "v.npz")
     assert 10 < vocabulary.n_words <= 100 and vocabulary.notes["images"] == 9  # frames 0, 10, ..., 80
     shown = evp("vocabulary", "info", tmp_path / "v.npz")
     assert shown.returncode == 0 and f"{vocabulary.n_words} words, 10 branches x 2 levels" in shown.stdout

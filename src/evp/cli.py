@@ -202,7 +202,9 @@ def align(
     from rich.progress import Progress
 
     from evp.config import load_settings, write_settings
+    from evp.eval.flight_report import flight_summary, write_flight_report
     from evp.fusion.flight import process_flight
+    from evp.fusion.gps_input import AlignmentError
     from evp.io.registry import open_dataset
     from evp.io.trajectory import read_trajectory
     from evp.pipeline import run_dataset
@@ -228,14 +230,14 @@ def align(
         with Progress(transient=True) as progress:
             task = progress.add_task(f"visual odometry {dataset.name}", total=dataset.num_frames)
             odometry = run_dataset(dataset, estimator, lambda n: progress.advance(task, n)).segments()
-    result = process_flight(dataset, odometry, settings.align, settings.gps_monitor, align_fraction)
+    if not dataset.gps:
+        raise AlignmentError(f"{dataset.root}: the dataset has no GPS fixes to align to")
+    result = process_flight(dataset.gps, dataset.baro, odometry, settings.align, settings.gps_monitor, align_fraction)
     if out is not None:
-        from evp.fusion.outputs import write_flight_outputs
-
-        summary = write_flight_outputs(result, out)
+        summary = write_flight_report(result, out)
         write_settings(settings, out)
     else:
-        summary = result.summary()
+        summary = flight_summary(result)
     a = summary["alignment"]
     typer.echo(
         f"aligned on {a['pairs_used']} pairs ({a['mode']}, {a['model']}, clock offset {a['clock_offset_s']:+.2f} s, validation RMSE {a['validation_rmse_m']:.2f} m)"
@@ -466,6 +468,7 @@ def vocabulary_build(
     from rich.progress import Progress
 
     from evp.config import load_settings
+    from evp.io.vocabulary_files import save_vocabulary
     from evp.vocabulary_training import build_vocabulary, dataset_descriptors, rendered_descriptors
 
     orb = load_settings(config).orb
@@ -476,17 +479,17 @@ def vocabulary_build(
         nodes = progress.add_task(f"clustering {sum(len(d) for d in sets)} descriptors", total=None)
         vocabulary = build_vocabulary(sets, names, branching, depth, orb, lambda done, total: progress.update(nodes, completed=done, total=total))
     out.parent.mkdir(parents=True, exist_ok=True)
-    vocabulary.save(out)
+    save_vocabulary(vocabulary, out)
     typer.echo(f"{out}: {vocabulary.n_words} words from {len(sets)} images ({vocabulary.notes['descriptors']} descriptors)")
 
 
 @vocabulary_app.command("info")
 def vocabulary_info(path: Path | None = typer.Argument(None, help="Vocabulary file (default: the one shipped with EVP).")) -> None:
     """What a vocabulary is: words, tree shape, what it was trained on."""
-    from evp.vision.vocabulary import Vocabulary, default_vocabulary_path
+    from evp.io.vocabulary_files import default_vocabulary_path, load_vocabulary
 
     path = path or default_vocabulary_path()
-    vocabulary = Vocabulary.load(path)
+    vocabulary = load_vocabulary(path)
     notes = vocabulary.notes
     typer.echo(f"{path}: {vocabulary.n_words} words, {vocabulary.branching} branches x {vocabulary.depth} levels")
     if notes:

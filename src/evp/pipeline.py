@@ -26,8 +26,7 @@ import numpy as np
 from evp.errors import EvpError, UsageError
 from evp.estimator import Estimator
 from evp.io.dataset import Dataset
-from evp.trajectory import Trajectory
-from evp.types import Frame, PoseEstimate
+from evp.types import Frame, PoseEstimate, Trajectory
 
 
 class Stage(Protocol):

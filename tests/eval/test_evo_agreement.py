@@ -10,7 +10,8 @@ from evo.core import metrics, sync  # noqa: E402
 from evo.core.trajectory import PoseTrajectory3D  # noqa: E402
 
 from evp.eval.cli_support import run_evaluation  # noqa: E402
-from evp.io.trajectory import Trajectory, write_trajectory  # noqa: E402
+from evp.io.trajectory import write_trajectory  # noqa: E402
+from evp.types import Trajectory  # noqa: E402
 from tests.conftest import shared  # noqa: E402
 
 TOL = 1e-6

@@ -8,7 +8,7 @@ from evp.eval.evaluate import EvaluationOptions, evaluate
 from evp.eval.metrics import Alignment, DeltaUnit, rpe_pairs
 from evp.eval.statistics import error_statistics
 from evp.geometry.alignment import Similarity
-from evp.io.trajectory import Trajectory
+from evp.types import Trajectory
 
 
 def _helix(n=200):

@@ -7,10 +7,11 @@ import sys
 import numpy as np
 import pytest
 
-from evp.io.trajectory import Trajectory, read_trajectory, write_trajectory
+from evp.io.trajectory import read_trajectory, write_trajectory
 from evp.sim.generate import generate
 from evp.sim.scenarios import SimOptions
 from evp.sim.sensors import GpsConfig
+from evp.types import Trajectory
 from tests.conftest import shared
 
 CONTRACT = ("mean", "max", "rmse", "q1", "q3", "iqr", "std", "n_evaluated")

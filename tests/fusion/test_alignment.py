@@ -7,12 +7,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from evp.config import AlignmentSettings
-from evp.fusion.alignment import align_flight, horizontal_errors_after
 from evp.fusion.geodesy import EnuFrame
+from evp.fusion.gps_alignment import align_flight, horizontal_errors_after
 from evp.fusion.gps_input import AlignmentError, GpsTrack, clean_gps
-from evp.io.trajectory import Trajectory
 from evp.sim.scenarios import SimOptions, build_scenario
-from evp.types import GpsFix
+from evp.types import GpsFix, Trajectory
 
 FRAME = EnuFrame(43.72, 10.40, 4.0)
 

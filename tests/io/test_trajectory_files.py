@@ -4,13 +4,13 @@ from scipy.spatial.transform import Rotation
 
 from evp.errors import TrajectoryFormatError
 from evp.io.trajectory import (
-    Trajectory,
     TrajectoryFormat,
     detect_trajectory_format,
     read_trajectory,
     tum_text,
     write_trajectory,
 )
+from evp.types import Trajectory
 
 
 def _random_trajectory(n=50, seed=0):

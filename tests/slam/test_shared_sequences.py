@@ -8,15 +8,18 @@ import itertools
 import pytest
 
 from evp.config import OrbSettings, Settings, SlamSettings
+from evp.io.map_files import load_map, save_map
 from evp.io.registry import open_dataset
 from evp.io.run_outputs import write_outputs
+from evp.io.vocabulary_files import default_vocabulary_path, load_vocabulary
 from evp.pipeline import run_dataset
 from evp.run_setup import camera_for, make_estimator
-from evp.slam.map import Map
 from evp.slam.system import SlamSystem
-from evp.slam.trials import cover_lens_then_revisit, relocalisation_error
 from evp.types import TrackingState
 from tests.conftest import shared
+from tests.slam.relocalisation_trials import cover_lens_then_revisit, relocalisation_error
+
+VOCABULARY = load_vocabulary(default_vocabulary_path())
 
 
 @pytest.mark.parametrize(("sequence", "max_ate_m", "min_tracked"), [("euroc_mh_01_easy_moving_360", 0.0075, 0.98), ("kitti_odom_06_f000-050", 0.10, 0.95)])
@@ -39,7 +42,7 @@ def euroc_start():
 
 def test_relocalises_on_real_images(euroc_start):
     dataset, frames = euroc_start
-    slam = SlamSystem(dataset.camera, OrbSettings(), SlamSettings())
+    slam = SlamSystem(dataset.camera, OrbSettings(), SlamSettings(), vocabulary=VOCABULARY)
     first, again = cover_lens_then_revisit(slam, frames, 150, slice(100, 120))
     assert TrackingState.RELOCALIZED in [e.tracking_state for e in again]
     index, distance, angle = relocalisation_error(first, again, slice(100, 120))
@@ -50,7 +53,7 @@ def test_relocalises_on_real_images(euroc_start):
 def test_mapping_worker_thread_on_real_images(euroc_start, tmp_path):
     """The live configuration: local mapping in its own thread, fed by the keyframe queue."""
     dataset, frames = euroc_start
-    slam = SlamSystem(dataset.camera, OrbSettings(), SlamSettings(mapping="thread"))
+    slam = SlamSystem(dataset.camera, OrbSettings(), SlamSettings(mapping="thread"), vocabulary=VOCABULARY)
     states = [slam.feed(frame).tracking_state for frame in frames]
     slam.finish()
     start = states.index(TrackingState.OK)  # 3 degrees of parallax: 1.5 s in
@@ -63,6 +66,6 @@ def test_mapping_worker_thread_on_real_images(euroc_start, tmp_path):
     # timing: under load 0-10 of the 31 earliest frames went unlocalised over 20 runs
     assert sum(frame.timestamp in refined for frame in frames[:start]) >= start // 2
     assert len(slam.mapping_ms) >= 5 and slam.mapping.max_queue <= 2
-    slam.map.save(tmp_path / "map.npz")
-    loaded = Map.load(tmp_path / "map.npz", slam.extractor.scale_factors)
+    save_map(slam.map, tmp_path / "map.npz")
+    loaded = load_map(tmp_path / "map.npz", slam.extractor.scale_factors)
     assert len(loaded.keyframes) == len(slam.map.keyframes) and len(loaded.points) == len(slam.map.points)

@@ -12,8 +12,9 @@ from evp.errors import EvpError
 from evp.eval.evaluate import EvaluationOptions, evaluate
 from evp.eval.metrics import Alignment
 from evp.geometry.transforms import se3_inverse
+from evp.io.map_files import load_map, save_map, write_map_ply
 from evp.io.registry import open_dataset
-from evp.io.trajectory import Trajectory
+from evp.io.vocabulary_files import default_vocabulary_path, load_vocabulary
 from evp.sim.generate import EPOCH_S, generate
 from evp.sim.scenarios import SimOptions, build_scenario
 from evp.sim.world import Renderer
@@ -21,8 +22,10 @@ from evp.slam.local_mapping import LocalMapper
 from evp.slam.loop_closing import GraphCorrection
 from evp.slam.map import Map
 from evp.slam.system import SlamSystem
-from evp.slam.trials import cover_lens_then_revisit, relocalisation_error
-from evp.types import Frame, TrackingState
+from evp.types import Frame, TrackingState, Trajectory
+from tests.slam.relocalisation_trials import cover_lens_then_revisit, relocalisation_error
+
+VOCABULARY = load_vocabulary(default_vocabulary_path())
 
 # seed 000's indoor circle, noise-free: no sensor noise, blur, exposure change or distortion
 CIRCLE = SimOptions(duration_s=9.0, fps=15.0, seed=4, noise_sigma=0.0, exposure_s=0.0, gain_variation=0.0, distortion=False, image_format="png")
@@ -37,7 +40,7 @@ def circle(tmp_path_factory):
 
 
 def _system(dataset):
-    return SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline"))
+    return SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline"), vocabulary=VOCABULARY)
 
 
 def _ate(dataset, slam: SlamSystem) -> float:
@@ -59,11 +62,11 @@ def test_noise_free_tracking_has_near_zero_error(circle, tmp_path):
     stamps, poses = slam.refined_trajectory()
     assert len(stamps) >= tracked
     # the map survives a save/load round trip and exports as a point cloud
-    slam.map.save(tmp_path / "map.npz")
-    loaded = Map.load(tmp_path / "map.npz", slam.extractor.scale_factors)
+    save_map(slam.map, tmp_path / "map.npz")
+    loaded = load_map(tmp_path / "map.npz", slam.extractor.scale_factors)
     assert set(loaded.keyframes) == set(slam.map.keyframes) and len(loaded.points) == len(slam.map.points)
     assert np.allclose(loaded.points[next(iter(loaded.points))].position, slam.map.points[next(iter(loaded.points))].position)
-    slam.map.write_ply(tmp_path / "map.ply")
+    write_map_ply(slam.map, tmp_path / "map.ply")
     assert f"element vertex {len(slam.map.points)}" in (tmp_path / "map.ply").read_text()
 
 
@@ -84,7 +87,9 @@ def test_new_points_are_seen_with_the_configured_parallax(circle, monkeypatch, m
             parallaxes.append(np.degrees(np.arccos(a @ b / np.linalg.norm(a) / np.linalg.norm(b))))
 
     monkeypatch.setattr(LocalMapper, "_triangulate_with", recording)
-    slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline", new_point_min_parallax_deg=min_parallax_deg))
+    slam = SlamSystem(
+        dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline", new_point_min_parallax_deg=min_parallax_deg), vocabulary=VOCABULARY
+    )
     for frame in frames[:80]:
         slam.feed(frame)
     slam.finish()
@@ -100,7 +105,7 @@ def test_the_frames_before_a_late_start_are_localised_in_the_refined_trajectory(
     the refined trajectory localises them against the final map (unless switched off)."""
     dataset, frames = circle
     settings = SlamSettings(mapping="inline", init_min_parallax_deg=3.0, start_backfill_frames=backfill)
-    slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), settings)
+    slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), settings, vocabulary=VOCABULARY)
     live = [slam.feed(frame).tracking_state for frame in frames]
     slam.finish()
     start = live.index(TrackingState.OK)
@@ -119,7 +124,7 @@ def test_blank_frames_before_the_start_stay_without_a_pose(circle):
     """A covered lens while the start waits: those frames have no features to localise, the
     others before the start still get their poses."""
     dataset, frames = circle
-    slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline", init_min_parallax_deg=3.0))
+    slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline", init_min_parallax_deg=3.0), vocabulary=VOCABULARY)
     blank = np.full_like(frames[0].image, 128)
     covered = {3, 4, 5}
     for k, frame in enumerate(frames):
@@ -191,7 +196,7 @@ def test_a_start_lost_within_a_few_keyframes_is_discarded_and_initialised_again(
     drone's climb: 64 points, lost at once, never relocalised). A larger map is kept (the test
     above)."""
     dataset, frames = circle
-    slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping=mapping))
+    slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping=mapping), vocabulary=VOCABULARY)
     states = []
     for frame in frames:
         states.append(slam.feed(frame).tracking_state)
@@ -296,7 +301,7 @@ def test_closes_the_loop_when_the_circle_comes_round(tmp_path, monkeypatch):
     dataset = open_dataset(tmp_path)
     ate = {}
     for loop_closing in (True, False):
-        slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline", loop_closing=loop_closing))
+        slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline", loop_closing=loop_closing), vocabulary=VOCABULARY)
         for frame in dataset.frames():
             slam.feed(frame)
         slam.finish()

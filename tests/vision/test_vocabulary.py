@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from evp.errors import EvpError
+from evp.io.vocabulary_files import load_vocabulary, save_vocabulary
 from evp.vision.vocabulary import Vocabulary, bow_score, train_vocabulary
 
 
@@ -78,8 +79,8 @@ def test_a_vocabulary_file_round_trips(tmp_path):
     rng = np.random.default_rng(5)
     descriptors, _ = _clustered(rng, 5, 30)
     vocabulary = train_vocabulary([descriptors[:70], descriptors[70:]], branching=5, depth=3, notes={"source": "test"})
-    vocabulary.save(tmp_path / "v.npz")
-    loaded = Vocabulary.load(tmp_path / "v.npz")
+    save_vocabulary(vocabulary, tmp_path / "v.npz")
+    loaded = load_vocabulary(tmp_path / "v.npz")
     assert loaded.notes == {"source": "test"} and loaded.n_words == vocabulary.n_words
     assert np.array_equal(loaded.words(descriptors), vocabulary.words(descriptors))
 
@@ -88,17 +89,17 @@ def test_a_vocabulary_file_round_trips(tmp_path):
 def test_a_file_that_is_not_a_vocabulary_is_a_clear_error(tmp_path, content):
     (tmp_path / "v.npz").write_bytes(content)
     with pytest.raises(EvpError, match="not an EVP vocabulary file"):
-        Vocabulary.load(tmp_path / "v.npz")
+        load_vocabulary(tmp_path / "v.npz")
 
 
 def test_a_missing_or_corrupt_vocabulary_is_a_clear_error(tmp_path):
     with pytest.raises(EvpError, match="no such vocabulary file"):
-        Vocabulary.load(tmp_path / "absent.npz")
+        load_vocabulary(tmp_path / "absent.npz")
     vocabulary = train_vocabulary([np.random.default_rng(6).integers(0, 256, (40, 32), dtype=np.uint8)], branching=4, depth=2)
     broken = Vocabulary(4, 2, vocabulary.centres, vocabulary.children + 1000, vocabulary.word_of_node, vocabulary.idf)
-    broken.save(tmp_path / "broken.npz")
+    save_vocabulary(broken, tmp_path / "broken.npz")
     with pytest.raises(EvpError, match="corrupt vocabulary"):
-        Vocabulary.load(tmp_path / "broken.npz")
+        load_vocabulary(tmp_path / "broken.npz")
 
 
 def test_too_few_descriptors_or_a_degenerate_shape_is_refused():

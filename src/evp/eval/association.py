@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from evp.errors import EvaluationError
-from evp.io.trajectory import Trajectory
+from evp.types import Trajectory
 
 
 def nearest_matches(stamps_short: np.ndarray, stamps_long: np.ndarray, max_diff: float) -> tuple[np.ndarray, np.ndarray]:

@@ -9,7 +9,8 @@ import numpy as np
 from evp.errors import EvaluationError, EvpError
 from evp.eval.evaluate import EvaluationOptions, EvaluationResult, evaluate
 from evp.eval.metrics import Alignment, DeltaUnit
-from evp.io.trajectory import Trajectory, read_timestamps, read_trajectory
+from evp.io.trajectory import read_timestamps, read_trajectory
+from evp.types import Trajectory
 
 
 def _stamped(trajectory: Trajectory, times: Path | None, other: Trajectory, label: str) -> Trajectory:

@@ -20,7 +20,7 @@ from evp.eval.metrics import (
 )
 from evp.eval.statistics import error_statistics
 from evp.geometry.alignment import Similarity
-from evp.io.trajectory import Trajectory
+from evp.types import Trajectory
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ import numpy as np
 from evp.errors import EvaluationError
 from evp.geometry.alignment import Similarity, umeyama
 from evp.geometry.transforms import rotation_angle, se3_inverse
-from evp.io.trajectory import Trajectory
+from evp.types import Trajectory
 
 
 class Alignment(enum.Enum):

@@ -1,5 +1,6 @@
 """A whole flight through the seed 002 system: odometry, alignment to GPS, barometric altitude,
-error statistics after the alignment phase, and the GPS consistency monitor (spoofing/jamming)."""
+the horizontal errors against GPS after the alignment phase, and the GPS consistency monitor
+(spoofing/jamming). Their statistics and figures are in ``evp.eval.flight_report``."""
 
 from __future__ import annotations
 
@@ -9,12 +10,10 @@ import numpy as np
 
 from evp.atmosphere import altitude_from_pressure
 from evp.config import AlignmentSettings, MonitorSettings
-from evp.eval.statistics import error_statistics
-from evp.fusion.alignment import AlignmentResult, align_flight, alignment_window, horizontal_errors_after, resample
+from evp.fusion.gps_alignment import AlignmentResult, align_flight, alignment_window, horizontal_errors_after, resample
 from evp.fusion.gps_input import AlignmentError, GpsTrack, clean_gps
 from evp.fusion.gps_monitor import GpsMonitor
-from evp.io.dataset import Dataset
-from evp.io.trajectory import Trajectory
+from evp.types import BaroSample, GpsFix, Trajectory
 
 NEAR_TARGET_M = 2.0  # seed 002's subset: |z - target| < 2 m
 
@@ -28,36 +27,15 @@ class FlightResult:
     trust: list[tuple[float, str]]  # (GPS time, trust state) after the alignment phase
     monitor: GpsMonitor
 
-    def summary(self) -> dict:
-        if self.errors_m.size == 0:
-            raise AlignmentError("no GPS fix after the alignment phase has a visual position to compare with")
-        out: dict = dict(error_statistics(self.errors_m))
-        out["n_evaluated"] = int(self.errors_m.size)
-        target = self.alignment.chosen["target_altitude_m"]
-        near = np.abs(self.error_heights_m - target) < NEAR_TARGET_M
-        out["near_target_altitude"] = error_statistics(self.errors_m[near]) if near.any() else None
-        out["alignment"] = {
-            "mode": self.alignment.transform.mode,
-            "window_gps_s": list(self.alignment.window),
-            "clock_offset_s": self.alignment.clock_offset_s,
-            "pairs_used": self.alignment.pairs_used,
-            "validation_rmse_m": self.alignment.validation_rmse_m,
-            "scale_m_per_unit": self.alignment.transform.scale,
-            **self.alignment.chosen,
-        }
-        out["events"] = [{"t": e.timestamp, "kind": e.kind, "message": e.message} for e in self.monitor.events]
-        out["warnings"] = self.alignment.warnings
-        return out
 
-
-def baro_heights(dataset: Dataset) -> Trajectory | None:
+def baro_heights(baro: list[BaroSample]) -> Trajectory | None:
     """Barometric height above the first sample (m), as a position-only trajectory (z)."""
-    if not dataset.baro:
+    if not baro:
         return None
-    times = np.array([b.timestamp for b in dataset.baro])
-    altitude = np.array([b.altitude_m for b in dataset.baro])
+    times = np.array([b.timestamp for b in baro])
+    altitude = np.array([b.altitude_m for b in baro])
     if not np.isfinite(altitude).all():  # pressure only: invert the standard atmosphere
-        altitude = altitude_from_pressure(np.array([b.pressure_pa for b in dataset.baro]))
+        altitude = altitude_from_pressure(np.array([b.pressure_pa for b in baro]))
     up = altitude - altitude[0]
     zeros = np.zeros(len(times))
     return Trajectory(np.column_stack([zeros, zeros, up]), np.tile([0.0, 0.0, 0.0, 1.0], (len(times), 1)), times, "baro")
@@ -102,16 +80,16 @@ def choose_segment(segments: list[Trajectory], gps: GpsTrack, settings: Alignmen
 
 
 def process_flight(
-    dataset: Dataset,
+    gps_fixes: list[GpsFix],
+    baro: list[BaroSample],
     odometry: Trajectory | list[Trajectory],
     settings: AlignmentSettings,
     monitor_settings: MonitorSettings,
     align_fraction: float | None = None,
 ) -> FlightResult:
-    """``odometry`` is one visual track, or its segments between tracking losses."""
-    if not dataset.gps:
-        raise AlignmentError(f"{dataset.root}: the dataset has no GPS fixes to align to")
-    gps = clean_gps(dataset.gps)
+    """``odometry`` is one visual track, or its segments between tracking losses; ``baro`` may be
+    empty (3-D alignment then keeps the transformed altitude)."""
+    gps = clean_gps(gps_fixes)
     segment_warnings: list[str] = []
     if isinstance(odometry, list):
         if not odometry:
@@ -120,7 +98,7 @@ def process_flight(
     if len(odometry) > 1:  # sparse imagery (survey photos seconds apart): interpolate across its spacing
         spacing = float(np.median(np.diff(odometry.timestamps)))
         settings = settings.model_copy(update={"max_gap_s": max(settings.max_gap_s, 3.0 * spacing)})
-    alignment = align_flight(odometry, gps, baro_heights(dataset), settings, align_fraction)
+    alignment = align_flight(odometry, gps, baro_heights(baro), settings, align_fraction)
     alignment.warnings.extend(segment_warnings)
     errors, heights = horizontal_errors_after(alignment, gps, settings.max_gap_s)
     monitor, trust = monitor_flight(alignment, gps, monitor_settings, settings.max_gap_s)

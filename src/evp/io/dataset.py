@@ -11,8 +11,7 @@ import cv2
 import numpy as np
 
 from evp.errors import DatasetError
-from evp.io.trajectory import Trajectory
-from evp.types import BaroSample, CameraModel, Frame, GpsFix, ImuSample, RangeSample, WheelOdometry, WifiScan
+from evp.types import BaroSample, CameraModel, Frame, GpsFix, ImuSample, RangeSample, Trajectory, WheelOdometry, WifiScan
 
 TelemetryRecord = ImuSample | GpsFix | BaroSample | WheelOdometry | WifiScan | RangeSample
 

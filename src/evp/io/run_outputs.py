@@ -12,7 +12,7 @@ from evp.errors import EvaluationError
 from evp.io.dataset import Dataset
 from evp.io.trajectory import write_trajectory
 from evp.pipeline import RunResult
-from evp.trajectory import Trajectory
+from evp.types import Trajectory
 
 
 def _stats(values: list[float]) -> dict:
@@ -71,8 +71,8 @@ def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: 
     if sparse_map is not None:
         from evp.io.map_files import save_map, write_map_ply
 
-        write_map_ply(out / "map.ply", sparse_map)
-        save_map(out / "map.npz", sparse_map)
+        write_map_ply(sparse_map, out / "map.ply")
+        save_map(sparse_map, out / "map.npz")
     with (out / "states.csv").open("w") as handle:
         handle.write("timestamp,state,quality\n")
         for e in result.estimates:

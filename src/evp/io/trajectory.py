@@ -1,4 +1,4 @@
-"""Trajectories and their file formats: TUM, KITTI, EuRoC ground-truth CSV and EVP CSV.
+"""Trajectory file formats: TUM, KITTI, EuRoC ground-truth CSV and EVP CSV.
 
 Formats are recognised from the content, not the file name:
 
@@ -12,13 +12,12 @@ Formats are recognised from the content, not the file name:
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from evp.errors import TrajectoryFormatError
-from evp.geometry.transforms import poses_from_xyz_quat, quat_xyzw_from_matrices
+from evp.types import Trajectory
 
 
 class TrajectoryFormat(enum.Enum):
@@ -29,62 +28,6 @@ class TrajectoryFormat(enum.Enum):
 
 
 CSV_HEADER = "timestamp,tx,ty,tz,qx,qy,qz,qw"
-
-
-@dataclass(frozen=True)
-class Trajectory:
-    """N poses of a sensor in a world frame; ``timestamps`` is None for KITTI files without times."""
-
-    positions: np.ndarray  # (N, 3) metres
-    quats_xyzw: np.ndarray  # (N, 4) Hamilton, scalar last, unit norm
-    timestamps: np.ndarray | None = None  # (N,) seconds
-    name: str = ""
-
-    def __post_init__(self) -> None:
-        n = len(self.positions)
-        if self.positions.shape != (n, 3) or self.quats_xyzw.shape != (n, 4):
-            raise ValueError("positions must be (N, 3) and quaternions (N, 4)")
-        if self.timestamps is not None and self.timestamps.shape != (n,):
-            raise ValueError("timestamps must be (N,)")
-
-    @staticmethod
-    def from_poses(poses: np.ndarray, timestamps: np.ndarray | None = None, name: str = "") -> Trajectory:
-        """From a stack of 4x4 poses."""
-        poses = np.asarray(poses, dtype=float).reshape(-1, 4, 4)
-        stamps = None if timestamps is None else np.asarray(timestamps, dtype=float)
-        return Trajectory(poses[:, :3, 3].copy(), quat_xyzw_from_matrices(poses[:, :3, :3]), stamps, name)
-
-    def __len__(self) -> int:
-        return len(self.positions)
-
-    @property
-    def poses(self) -> np.ndarray:
-        """(N, 4, 4) camera-to-world transforms."""
-        return poses_from_xyz_quat(self.positions, self.quats_xyzw)
-
-    @property
-    def path_length(self) -> float:
-        """Sum of the distances between consecutive positions (metres)."""
-        if len(self) < 2:
-            return 0.0
-        return float(np.sum(np.linalg.norm(np.diff(self.positions, axis=0), axis=1)))
-
-    @property
-    def duration(self) -> float:
-        if self.timestamps is None or len(self) < 2:
-            return 0.0
-        return float(self.timestamps[-1] - self.timestamps[0])
-
-    def select(self, indices: np.ndarray) -> Trajectory:
-        """The poses at the given indices (or boolean mask)."""
-        stamps = None if self.timestamps is None else self.timestamps[indices]
-        return Trajectory(self.positions[indices], self.quats_xyzw[indices], stamps, self.name)
-
-    def with_timestamps(self, timestamps: np.ndarray) -> Trajectory:
-        stamps = np.asarray(timestamps, dtype=float)
-        if len(stamps) != len(self):
-            raise ValueError(f"{len(stamps)} timestamps for {len(self)} poses")
-        return Trajectory(self.positions, self.quats_xyzw, stamps, self.name)
 
 
 def _data_lines(path: Path) -> list[tuple[int, str]]:

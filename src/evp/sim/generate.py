@@ -18,11 +18,12 @@ import cv2
 import numpy as np
 import yaml
 
-from evp.io.trajectory import Trajectory, write_trajectory
+from evp.io.trajectory import write_trajectory
 from evp.sim import sensors
 from evp.sim.camera_effects import render_frame
 from evp.sim.scenarios import Scenario, SimOptions, build_scenario
 from evp.sim.world import Renderer, ray_distance
+from evp.types import Trajectory
 
 EPOCH_S = 1_700_000_000  # simulated clocks start here (2023-11-14), like real sensor clocks
 IMAGE_PARAMS = {"png": [cv2.IMWRITE_PNG_COMPRESSION, 1], "jpg": [cv2.IMWRITE_JPEG_QUALITY, 95]}

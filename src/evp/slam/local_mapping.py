@@ -23,10 +23,10 @@ from evp.geometry.epipolar_band import epipolar_pairs
 from evp.geometry.two_view import CHI2_1DOF, check_points, triangulate
 from evp.slam.adjustment_process import LocalAdjustment
 from evp.slam.bundle_adjustment import BundleProblem
-from evp.slam.fusion import fuse_points
 from evp.slam.loop_closing import LoopCloser
 from evp.slam.map import KeyFrame, Map
 from evp.slam.map_adjustment import apply_solution, whole_map_problem, window_problem
+from evp.slam.point_fusion import fuse_points
 from evp.slam.projection import undistorted_bounds
 from evp.vision.matching import TH_LOW, best_unique_pairs, hamming_pairs, rotation_consistent
 from evp.vision.orb import OrbExtractor

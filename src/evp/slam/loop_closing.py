@@ -27,8 +27,8 @@ from evp.config import SlamSettings
 from evp.geometry.sim3 import Sim3
 from evp.geometry.transforms import rotation_angle, se3_inverse
 from evp.slam.essential_graph import optimise_pose_graph
-from evp.slam.fusion import fuse_points
 from evp.slam.map import KeyFrame, Map
+from evp.slam.point_fusion import fuse_points
 from evp.slam.pose_optimizer import optimise_pose, rotation_std_deg
 from evp.slam.projection import project_points, undistorted_bounds
 from evp.slam.sim3_estimation import estimate_sim3

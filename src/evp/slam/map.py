@@ -1,4 +1,5 @@
-"""The SLAM map: keyframes, map points, the covisibility graph; save/load and PLY export.
+"""The SLAM map: keyframes, map points, the covisibility graph; to and from flat arrays (its
+files are in ``evp.io.map_files``).
 
 Poses are stored as ``T_cw`` (world to camera), the form projection needs. All mutation goes
 through :class:`Map` methods; callers hold ``Map.lock`` while tracking reads and mapping writes.
@@ -6,13 +7,10 @@ through :class:`Map` methods; callers hold ``Map.lock`` while tracking reads and
 
 from __future__ import annotations
 
-import json
 import threading
-import zipfile
 from collections import Counter
 from dataclasses import dataclass, field
 from itertools import chain
-from pathlib import Path
 
 import numpy as np
 
@@ -21,8 +19,6 @@ from evp.slam.keyframe_database import KeyframeDatabase
 from evp.vision.matching import hamming_pairs
 from evp.vision.orb import Features
 from evp.vision.vocabulary import BowVector
-
-MAP_FORMAT_VERSION = 2  # 2: keyframes carry bag-of-words vectors (1: thumbnails)
 
 
 @dataclass
@@ -341,23 +337,22 @@ class Map:
         ids = np.array(sorted(self.points), dtype=int)
         return ids, self.store.position[ids].copy()
 
-    # --- persistence --------------------------------------------------------------------
+    # --- trajectory and arrays ---------------------------------------------------------
 
     def keyframe_poses(self) -> tuple[np.ndarray, np.ndarray]:
         """Timestamps and ``T_world_cam`` of the keyframes in time order."""
         kfs = sorted(self.keyframes.values(), key=lambda k: k.timestamp)
         return np.array([k.timestamp for k in kfs]), np.array([se3_inverse(k.T_cw) for k in kfs]).reshape(-1, 4, 4)
 
-    def write_ply(self, path: Path) -> None:
-        """Map points as an ASCII PLY point cloud (opens in MeshLab, CloudCompare, Open3D)."""
-        _, positions = self.point_array()
-        header = f"ply\nformat ascii 1.0\ncomment EVP map points\nelement vertex {len(positions)}\nproperty double x\nproperty double y\nproperty double z\nend_header\n"
-        with Path(path).open("w") as handle:
-            handle.write(header)
-            np.savetxt(handle, positions, fmt="%.9g")
+    @property
+    def id_counters(self) -> tuple[int, int]:
+        """The ids the next keyframe and the next point will get (a reloaded map goes on from them)."""
+        return self._next_kf, self._next_point
 
-    def save(self, path: Path) -> None:
-        """Everything needed to relocalise against and extend the map later (one .npz file)."""
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Everything needed to relocalise against and extend the map later, as flat arrays:
+        keyframes in id order with their features and bag-of-words vectors concatenated (and
+        their sizes), points in id order. :meth:`from_arrays` rebuilds the map from them."""
         kfs = sorted(self.keyframes.values(), key=lambda k: k.id)
         point_ids, positions = self.point_array()
         arrays = {
@@ -376,25 +371,12 @@ class Map:
         for name in ("px", "un_px", "normalised", "octave", "angle", "descriptors"):
             arrays[f"feat_{name}"] = np.concatenate([getattr(k.features, name) for k in kfs]) if kfs else np.zeros(0)
         arrays["feat_point_ids"] = np.concatenate([k.point_ids for k in kfs]) if kfs else np.zeros(0, int)
-        meta = {"format": "evp-map", "version": MAP_FORMAT_VERSION, "next_kf": self._next_kf, "next_point": self._next_point}
-        np.savez_compressed(Path(path), meta=np.array(json.dumps(meta)), **arrays)
+        return arrays
 
     @classmethod
-    def load(cls, path: Path, scale_factors: np.ndarray) -> Map:
-        from evp.errors import EvpError
-
-        try:
-            with np.load(Path(path), allow_pickle=False) as archive:
-                # each array read once: indexing the archive decompresses the whole array again, and
-                # per keyframe that took 26 GB for a 520-keyframe map (every slice kept its own copy)
-                data = {name: archive[name] for name in archive.files}
-            meta = json.loads(str(data["meta"]))
-        except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as exc:
-            raise EvpError(f"{path}: not an EVP map file ({exc})") from exc
-        if meta.get("format") != "evp-map":
-            raise EvpError(f"{path}: not an EVP map file")
-        if meta.get("version") != MAP_FORMAT_VERSION:
-            raise EvpError(f"{path}: map format version {meta.get('version')}; this EVP reads version {MAP_FORMAT_VERSION} (build the map again)")
+    def from_arrays(cls, data: dict[str, np.ndarray], id_counters: tuple[int, int], scale_factors: np.ndarray) -> Map:
+        """The map of :meth:`to_arrays`, with its observations, covisibility graph, place-recognition
+        database and point statistics rebuilt; ids go on from ``id_counters``."""
         result = cls()
         offsets = np.r_[0, np.cumsum(data["kf_sizes"])]
         bow_offsets = np.r_[0, np.cumsum(data["kf_bow_sizes"])]
@@ -426,5 +408,5 @@ class Map:
         for kf in result.keyframes.values():
             result.update_covisibility(kf)
         result.refresh_points(list(result.points), scale_factors)
-        result._next_kf, result._next_point = meta["next_kf"], meta["next_point"]
+        result._next_kf, result._next_point = id_counters
         return result

@@ -17,7 +17,6 @@ import time
 from collections import Counter, deque
 from dataclasses import asdict, dataclass
 from itertools import chain
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -37,7 +36,7 @@ from evp.types import CameraModel, Frame, PoseEstimate, TrackingState
 from evp.vision.images import grey_image
 from evp.vision.matching import TH_HIGH, TH_LOW, match_descriptors, match_in_window, rotation_consistent
 from evp.vision.orb import Features, OrbExtractor
-from evp.vision.vocabulary import BowVector, Vocabulary, default_vocabulary_path
+from evp.vision.vocabulary import BowVector, Vocabulary
 
 RELOCALISATION_CANDIDATES = 5  # keyframes verified by PnP per lost frame, best place first
 
@@ -69,14 +68,14 @@ class _FrameRecord:
 
 
 class SlamSystem(Estimator):
-    def __init__(self, camera: CameraModel, orb: OrbSettings | None = None, settings: SlamSettings | None = None):
+    def __init__(self, camera: CameraModel, orb: OrbSettings | None = None, settings: SlamSettings | None = None, *, vocabulary: Vocabulary):
         self.camera = camera
         self.settings = settings or SlamSettings()
         self.extractor = OrbExtractor(orb or OrbSettings(), camera)
         self.K = camera.K
         self.bounds = undistorted_bounds(self.extractor)
         self.map = Map()
-        self.vocabulary = Vocabulary.load(Path(self.settings.vocabulary) if self.settings.vocabulary else default_vocabulary_path())
+        self.vocabulary = vocabulary  # the adapter loads the one ``settings.vocabulary`` names
         if self.settings.mapping == "thread":
             self.mapping: MappingWorker | InlineMapping = MappingWorker(LocalMapper(self.map, self.extractor, self.settings, AdjustmentProcess()))
         else:

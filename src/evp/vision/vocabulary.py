@@ -10,15 +10,13 @@ place and does not).
 
 Nothing can be downloaded where EVP runs: the shipped vocabulary is trained by EVP itself on images
 it renders (``evp vocabulary build``; see ``sim/vocabulary_images.py``), and users can train one on
-their own flights.
+their own flights. Its files are in ``evp.io.vocabulary_files``.
 """
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -26,12 +24,6 @@ from evp.errors import EvpError
 from evp.vision.matching import hamming_pairs
 
 DESCRIPTOR_BYTES = 32
-FORMAT = "evp-orb-vocabulary"
-
-
-def default_vocabulary_path() -> Path:
-    """The vocabulary shipped with EVP (10 x 4 levels, trained on EVP's renders)."""
-    return Path(__file__).with_name("orb_vocabulary.npz")
 
 
 @dataclass(frozen=True)
@@ -93,29 +85,9 @@ class Vocabulary:
         total = weights.sum()
         return BowVector(words.astype(np.int32), weights / total if total > 0 else weights)
 
-    def save(self, path: Path) -> None:
-        meta = {"format": FORMAT, "version": 1, "branching": self.branching, "depth": self.depth, "notes": self.notes}
-        np.savez_compressed(
-            Path(path), meta=np.array(json.dumps(meta)), centres=self.centres, children=self.children, word_of_node=self.word_of_node, idf=self.idf
-        )
-
-    @classmethod
-    def load(cls, path: Path) -> Vocabulary:
-        try:
-            with np.load(Path(path), allow_pickle=False) as archive:
-                data = {name: archive[name] for name in archive.files}
-            meta = json.loads(str(data["meta"]))
-        except FileNotFoundError as exc:
-            raise EvpError(f"{path}: no such vocabulary file") from exc
-        except Exception as exc:  # a zip, pickle or JSON error: the file is not what it should be
-            raise EvpError(f"{path}: not an EVP vocabulary file ({exc})") from exc
-        if meta.get("format") != FORMAT:
-            raise EvpError(f"{path}: not an EVP vocabulary file")
-        vocabulary = cls(meta["branching"], meta["depth"], data["centres"], data["children"], data["word_of_node"], data["idf"], meta.get("notes", {}))
-        vocabulary._check(path)
-        return vocabulary
-
-    def _check(self, path: Path) -> None:
+    def problems(self) -> list[str]:
+        """What makes the tree inconsistent (arrays of the wrong type or size, indices out of
+        range); empty for a sound vocabulary."""
         nodes = len(self.centres)
         problems = []
         if self.centres.dtype != np.uint8 or self.centres.shape[1:] != (DESCRIPTOR_BYTES,):
@@ -124,8 +96,7 @@ class Vocabulary:
             problems.append("tree arrays of inconsistent sizes")
         elif self.children.max(initial=-1) >= nodes or (self.word_of_node >= len(self.idf)).any():
             problems.append("a node or word index out of range")
-        if problems:
-            raise EvpError(f"{path}: corrupt vocabulary ({'; '.join(problems)})")
+        return problems
 
 
 def train_vocabulary(

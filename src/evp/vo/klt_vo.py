@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from evp.estimator import Estimator
 from evp.config import VoSettings
+from evp.estimator import Estimator
 from evp.geometry.transforms import se3, se3_inverse
 from evp.geometry.two_view import CHI2_2DOF, check_points, triangulate
 from evp.types import CameraModel, Frame, PoseEstimate, TrackingState

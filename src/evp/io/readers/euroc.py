@@ -10,8 +10,8 @@ from evp.calib.camera_files import load_yaml_mapping, read_camera
 from evp.errors import DatasetError
 from evp.io.dataset import Dataset, check_increasing, image_file_frames
 from evp.io.text_tables import read_named_lines, read_table
-from evp.io.trajectory import Trajectory, read_trajectory
-from evp.types import BaroSample, GpsFix, ImuSample, RangeSample, WheelOdometry, WifiScan
+from evp.io.trajectory import read_trajectory
+from evp.types import BaroSample, GpsFix, ImuSample, RangeSample, Trajectory, WheelOdometry, WifiScan
 
 
 def _mav0(path: Path) -> Path:

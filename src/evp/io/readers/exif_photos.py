@@ -19,8 +19,7 @@ from PIL import Image, UnidentifiedImageError
 from evp.calib.camera_files import read_camera
 from evp.errors import DatasetError
 from evp.io.dataset import Dataset, image_file_frames
-from evp.io.trajectory import Trajectory
-from evp.types import CameraModel, GpsFix
+from evp.types import CameraModel, GpsFix, Trajectory
 
 GPS_IFD = 0x8825
 EXIF_IFD = 0x8769

@@ -1,4 +1,5 @@
-"""Seeded trials of the GPS consistency monitor on simulated flights (no images needed): used by the tests and bench/gps_alignment.py.
+"""Seeded trials of the GPS consistency monitor on simulated flights (no images needed): used by
+the tests and bench/gps_alignment.py (experiments on the simulator, so not part of the core).
 
 The visual track is the truth replayed with a scale and a heading error of ``drift_fraction``
 (1 sigma each, slowly wandering), so its error grows in proportion to the distance travelled like a

@@ -1,5 +1,6 @@
 """Relocalisation trials: a forced tracking loss (the lens covered) followed by a return to a
-mapped place. Shared by the tests and bench/run_sequences.py."""
+mapped place. Shared by the tests and bench/run_sequences.py (an experiment driving the system,
+not part of it)."""
 
 import numpy as np
 

@@ -16,9 +16,9 @@ import numpy as np
 
 from evp.config import AlignmentSettings
 from evp.fusion.gps_input import AlignmentError, GpsTrack
-from evp.fusion.transforms import MODELS, OdomToEnu, fit_transform
+from evp.fusion.odometry_to_enu import MODELS, OdomToEnu, fit_transform
 from evp.geometry.alignment import umeyama
-from evp.io.trajectory import Trajectory
+from evp.types import Trajectory
 
 ABSOLUTE_MIN_PAIRS = 6  # below this no alignment is attempted (a 3-D affine needs 4, plus validation)
 

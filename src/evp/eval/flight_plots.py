@@ -1,8 +1,7 @@
-"""Files and figures of ``evp align``: geo-referenced track (TUM, CSV, GeoJSON), statistics, plots."""
+"""Figures of an aligned flight (``evp align --out``), PNG."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import matplotlib
@@ -12,37 +11,11 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from evp.fusion.flight import NEAR_TARGET_M, FlightResult  # noqa: E402
-from evp.io.trajectory import write_trajectory  # noqa: E402
 
 
-def write_geo_track(result: FlightResult, out: Path) -> None:
-    aligned = result.alignment.aligned
-    frame = result.gps.frame
-    geodetic = frame.to_geodetic(np.nan_to_num(aligned.positions))
-    write_trajectory(out / "aligned_enu.tum", aligned)
-    with (out / "aligned.csv").open("w") as handle:
-        handle.write("timestamp,east_m,north_m,up_m,latitude_deg,longitude_deg,altitude_m\n")
-        for t, enu, geo in zip(aligned.timestamps, aligned.positions, geodetic):
-            handle.write(",".join(repr(float(v)) for v in (t, *enu, *geo)) + "\n")
-    geojson = {
-        "type": "FeatureCollection",
-        "features": [
-            {
-                "type": "Feature",
-                "properties": {"name": "visual track aligned to GPS"},
-                "geometry": {"type": "LineString", "coordinates": [[g[1], g[0], g[2]] for g in geodetic]},
-            },
-            {
-                "type": "Feature",
-                "properties": {"name": "GPS fixes"},
-                "geometry": {"type": "MultiPoint", "coordinates": [[g[1], g[0], g[2]] for g in frame.to_geodetic(result.gps.enu)]},
-            },
-        ],
-    }
-    (out / "aligned.geojson").write_text(json.dumps(geojson))
-
-
-def plot_errors(result: FlightResult, out: Path) -> list[Path]:
+def plot_flight_errors(result: FlightResult, out: Path) -> list[Path]:
+    """Histogram and box plot of the errors against GPS (seed 002 Figs. 3, 7, 8), and the track
+    over the GPS fixes with their 1-sigma circles and the alarms (Fig. 9)."""
     errors = result.errors_m
     target = result.alignment.chosen["target_altitude_m"]
     near = np.abs(result.error_heights_m - target) < NEAR_TARGET_M
@@ -88,13 +61,3 @@ def plot_errors(result: FlightResult, out: Path) -> list[Path]:
     plt.close(fig)
     paths.append(out / "trajectory_gps.png")
     return paths
-
-
-def write_flight_outputs(result: FlightResult, out: Path) -> dict:
-    out.mkdir(parents=True, exist_ok=True)
-    summary = result.summary()
-    write_geo_track(result, out)
-    plot_errors(result, out)
-    (out / "metrics.json").write_text(json.dumps(summary, indent=2))
-    (out / "gps_trust.csv").write_text("gps_time,trust\n" + "".join(f"{t!r},{state}\n" for t, state in result.trust))
-    return summary

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from evp.errors import EvpError
+from evp.io.map_files import load_map, save_map
 from evp.slam.map import Map
 from evp.vision.orb import Features
 from evp.vision.vocabulary import BowVector
@@ -41,8 +42,8 @@ def _map(keyframes: int, features: int, rng: np.random.Generator) -> Map:
 
 def test_a_saved_map_loads_back_the_same(tmp_path):
     original = _map(12, 50, np.random.default_rng(0))
-    original.save(tmp_path / "map.npz")
-    loaded = Map.load(tmp_path / "map.npz", SCALES)
+    save_map(original, tmp_path / "map.npz")
+    loaded = load_map(tmp_path / "map.npz", SCALES)
     assert sorted(loaded.keyframes) == sorted(original.keyframes)
     assert sorted(loaded.points) == sorted(original.points)
     for point_id, point in original.points.items():
@@ -61,7 +62,7 @@ def test_a_saved_map_loads_back_the_same(tmp_path):
 def test_each_array_is_read_from_the_file_once_however_many_keyframes(tmp_path, monkeypatch):
     """Indexing an ``np.load`` archive decompresses the whole array each time: read per keyframe,
     a 520-keyframe map took 26 GB to load. Reads must not grow with the keyframes."""
-    _map(40, 30, np.random.default_rng(1)).save(tmp_path / "map.npz")
+    save_map(_map(40, 30, np.random.default_rng(1)), tmp_path / "map.npz")
     reads: Counter[str] = Counter()
     archive_type = type(np.load(tmp_path / "map.npz"))
     original_getitem = archive_type.__getitem__
@@ -71,7 +72,7 @@ def test_each_array_is_read_from_the_file_once_however_many_keyframes(tmp_path, 
         return original_getitem(self, key)
 
     monkeypatch.setattr(archive_type, "__getitem__", counting_getitem)
-    loaded = Map.load(tmp_path / "map.npz", SCALES)
+    loaded = load_map(tmp_path / "map.npz", SCALES)
     assert len(loaded.keyframes) == 40
     assert reads and max(reads.values()) == 1, reads.most_common(3)
 
@@ -85,22 +86,22 @@ def test_a_file_that_is_not_a_map_is_a_clear_error(tmp_path, content):
     path = tmp_path / "map.npz"
     path.write_bytes(content)
     with pytest.raises(EvpError, match="not an EVP map file"):
-        Map.load(path, SCALES)
+        load_map(path, SCALES)
 
 
 def test_a_map_of_an_older_format_is_refused_by_name(tmp_path):
-    _map(3, 10, np.random.default_rng(3)).save(tmp_path / "map.npz")
+    save_map(_map(3, 10, np.random.default_rng(3)), tmp_path / "map.npz")
     with np.load(tmp_path / "map.npz") as archive:
         arrays = {name: archive[name] for name in archive.files}
     arrays["meta"] = np.array(json.dumps({**json.loads(str(arrays["meta"])), "version": 1}))
     np.savez(tmp_path / "old.npz", **arrays)
     with pytest.raises(EvpError, match="map format version 1"):
-        Map.load(tmp_path / "old.npz", SCALES)
+        load_map(tmp_path / "old.npz", SCALES)
 
 
 def test_a_map_cut_short_is_a_clear_error(tmp_path):
-    _map(5, 20, np.random.default_rng(2)).save(tmp_path / "map.npz")
+    save_map(_map(5, 20, np.random.default_rng(2)), tmp_path / "map.npz")
     whole = (tmp_path / "map.npz").read_bytes()
     (tmp_path / "cut.npz").write_bytes(whole[: len(whole) // 2])
     with pytest.raises(EvpError, match="not an EVP map file"):
-        Map.load(tmp_path / "cut.npz", SCALES)
+        load_map(tmp_path / "cut.npz", SCALES)

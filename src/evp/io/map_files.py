@@ -1,0 +1,50 @@
+"""Map files: the whole map as one ``.npz`` (to relocalise against and extend it later) and its
+points as an ASCII PLY point cloud (opens in MeshLab, CloudCompare, Open3D)."""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from evp.errors import EvpError
+from evp.slam.map import Map
+
+MAP_FORMAT_VERSION = 2  # 2: keyframes carry bag-of-words vectors (1: thumbnails)
+
+
+def write_map_ply(slam_map: Map, path: Path) -> None:
+    """The map points as an ASCII PLY point cloud."""
+    _, positions = slam_map.point_array()
+    header = (
+        f"ply\nformat ascii 1.0\ncomment EVP map points\nelement vertex {len(positions)}\nproperty double x\nproperty double y\nproperty double z\nend_header\n"
+    )
+    with Path(path).open("w") as handle:
+        handle.write(header)
+        np.savetxt(handle, positions, fmt="%.9g")
+
+
+def save_map(slam_map: Map, path: Path) -> None:
+    """The map's arrays and its id counters, compressed into one ``.npz``."""
+    next_kf, next_point = slam_map.id_counters
+    meta = {"format": "evp-map", "version": MAP_FORMAT_VERSION, "next_kf": next_kf, "next_point": next_point}
+    np.savez_compressed(Path(path), meta=np.array(json.dumps(meta)), **slam_map.to_arrays())
+
+
+def load_map(path: Path, scale_factors: np.ndarray) -> Map:
+    """A map saved by :func:`save_map`; a file that is not one, or of another format version, is a clear error."""
+    try:
+        with np.load(Path(path), allow_pickle=False) as archive:
+            # each array read once: indexing the archive decompresses the whole array again, and
+            # per keyframe that took 26 GB for a 520-keyframe map (every slice kept its own copy)
+            data = {name: archive[name] for name in archive.files}
+        meta = json.loads(str(data["meta"]))
+    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+        raise EvpError(f"{path}: not an EVP map file ({exc})") from exc
+    if meta.get("format") != "evp-map":
+        raise EvpError(f"{path}: not an EVP map file")
+    if meta.get("version") != MAP_FORMAT_VERSION:
+        raise EvpError(f"{path}: map format version {meta.get('version')}; this EVP reads version {MAP_FORMAT_VERSION} (build the map again)")
+    return Map.from_arrays(data, (meta["next_kf"], meta["next_point"]), scale_factors)

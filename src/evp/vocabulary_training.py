@@ -10,7 +10,7 @@ import numpy as np
 
 from evp import __version__
 from evp.config import OrbSettings
-from evp.errors import EvpError
+from evp.errors import DatasetError
 from evp.vision.orb import OrbExtractor
 from evp.vision.vocabulary import Vocabulary, train_vocabulary
 
@@ -37,7 +37,7 @@ def dataset_descriptors(paths: list[Path], every: int, orb: OrbSettings, on_imag
     for path in paths:
         dataset = open_dataset(path)
         if dataset.num_frames == 0:
-            raise EvpError(f"{path}: no camera frames to train a vocabulary on ({dataset.format})")
+            raise DatasetError(path, f"no camera frames to train a vocabulary on ({dataset.format})")
         extractor = OrbExtractor(orb, dataset.camera)
         for index, frame in enumerate(dataset.frames()):
             if index % every == 0:

@@ -381,7 +381,7 @@ class Map:
 
     @classmethod
     def load(cls, path: Path, scale_factors: np.ndarray) -> Map:
-        from evp.errors import EvpError
+        from evp.errors import DataFormatError
 
         try:
             with np.load(Path(path), allow_pickle=False) as archive:
@@ -390,11 +390,11 @@ class Map:
                 data = {name: archive[name] for name in archive.files}
             meta = json.loads(str(data["meta"]))
         except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as exc:
-            raise EvpError(f"{path}: not an EVP map file ({exc})") from exc
+            raise DataFormatError(path, f"not an EVP map file ({exc})") from exc
         if meta.get("format") != "evp-map":
-            raise EvpError(f"{path}: not an EVP map file")
+            raise DataFormatError(path, "not an EVP map file")
         if meta.get("version") != MAP_FORMAT_VERSION:
-            raise EvpError(f"{path}: map format version {meta.get('version')}; this EVP reads version {MAP_FORMAT_VERSION} (build the map again)")
+            raise DataFormatError(path, f"map format version {meta.get('version')}; this EVP reads version {MAP_FORMAT_VERSION} (build the map again)")
         result = cls()
         offsets = np.r_[0, np.cumsum(data["kf_sizes"])]
         bow_offsets = np.r_[0, np.cumsum(data["kf_bow_sizes"])]

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from evp.geometry.transforms import poses_from_xyz_quat, quat_xyzw_from_matrices
-from evp.station.protocol import CameraConfig, ImageMessage, Pose, ProtocolError
-from evp.types import PoseEstimate
+from evp.station.protocol import ImageMessage, Pose, ProtocolError
+from evp.types import CameraModel, PoseEstimate
 
 
 def pose_message(seq: int, estimate: PoseEstimate, reset_counter: int, processing_ms: float) -> Pose:
@@ -45,7 +45,7 @@ def pose_matrix(pose: Pose) -> np.ndarray:
     return poses_from_xyz_quat(np.array([pose.t]), np.array([[qx, qy, qz, qw]]))[0]
 
 
-def worker_main(connection, camera: CameraConfig, settings_json: str) -> None:
+def worker_main(connection, camera: CameraModel, settings_json: str) -> None:
     """The estimator process: ('frame', ImageMessage) in, ('pose', Pose) or ('error', ...) out."""
     from evp.config import Settings
     from evp.errors import EvpError
@@ -54,7 +54,7 @@ def worker_main(connection, camera: CameraConfig, settings_json: str) -> None:
     from evp.types import Frame
 
     settings = Settings.model_validate_json(settings_json)
-    estimator = make_estimator(camera.camera_model(), settings)
+    estimator = make_estimator(camera, settings)
     connection.send(("ready", None))
     while True:
         try:
@@ -96,7 +96,7 @@ class WorkerEvents:
 class EstimatorWorker:
     """Async handle on one estimator process."""
 
-    def __init__(self, camera: CameraConfig, settings_json: str, events: WorkerEvents):
+    def __init__(self, camera: CameraModel, settings_json: str, events: WorkerEvents):
         self.camera = camera
         self._events = events
         self._loop = asyncio.get_running_loop()

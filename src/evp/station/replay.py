@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from evp.errors import EvpError
-from evp.station.protocol import ENCODING_IDS, ImageMessage, Pose, ProtocolError, image_pixels
+from evp.errors import DataError, EvpError, UsageError
+from evp.station.protocol import ENCODING_IDS, ImageMessage, Pose, image_pixels
 from evp.station.recording import RAW_ROS_ENCODING, TOPIC_CAMERA_INFO, TOPIC_IMAGE_COMPRESSED, TOPIC_IMAGE_RAW, decoded_messages
 from evp.station.store import SessionStore
 
@@ -62,13 +62,13 @@ def replay(store: SessionStore, session_id: str, all_frames: bool = False, progr
 
     row = store.session(session_id)
     if row is None:
-        raise EvpError(f"no session {session_id!r} in {store.url}")
+        raise UsageError(f"no session {session_id!r} in {store.url}")
     mcap_path = Path(row["mcap_path"] or "")
     if not mcap_path.is_file():
-        raise EvpError(f"session {session_id}: recording {mcap_path} is missing")
+        raise DataError(f"session {session_id}: recording {mcap_path} is missing")
     starts = [(s["t"], Settings.model_validate_json(s["data_json"])) for s in store.rows("settings", session_id) if s["source"] == "server"]
     if not starts:
-        raise EvpError(f"session {session_id}: the estimator never started live; nothing to replay")
+        raise DataError(f"session {session_id}: the estimator never started live; nothing to replay")
     camera = None
     estimator = None
     start_index = -1
@@ -87,7 +87,7 @@ def replay(store: SessionStore, session_id: str, all_frames: bool = False, progr
         try:
             image = image_pixels(item.message)
             estimate = estimator.feed(Frame(item.message.timestamp, image, index=item.message.seq, source="stream"))
-        except (ProtocolError, EvpError):
+        except EvpError:  # a corrupt image (ProtocolError) or a frame the estimator refuses
             continue
         poses.append(pose_message(item.message.seq, estimate, getattr(estimator, "reset_counter", 0), 0.0))
     return poses

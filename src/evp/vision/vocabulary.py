@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evp.errors import EvpError
+from evp.errors import DataError, DataFormatError, UsageError
 from evp.vision.matching import hamming_pairs
 
 DESCRIPTOR_BYTES = 32
@@ -106,11 +106,11 @@ class Vocabulary:
                 data = {name: archive[name] for name in archive.files}
             meta = json.loads(str(data["meta"]))
         except FileNotFoundError as exc:
-            raise EvpError(f"{path}: no such vocabulary file") from exc
+            raise DataFormatError(path, "no such vocabulary file") from exc
         except Exception as exc:  # a zip, pickle or JSON error: the file is not what it should be
-            raise EvpError(f"{path}: not an EVP vocabulary file ({exc})") from exc
+            raise DataFormatError(path, f"not an EVP vocabulary file ({exc})") from exc
         if meta.get("format") != FORMAT:
-            raise EvpError(f"{path}: not an EVP vocabulary file")
+            raise DataFormatError(path, "not an EVP vocabulary file")
         vocabulary = cls(meta["branching"], meta["depth"], data["centres"], data["children"], data["word_of_node"], data["idf"], meta.get("notes", {}))
         vocabulary._check(path)
         return vocabulary
@@ -125,7 +125,7 @@ class Vocabulary:
         elif self.children.max(initial=-1) >= nodes or (self.word_of_node >= len(self.idf)).any():
             problems.append("a node or word index out of range")
         if problems:
-            raise EvpError(f"{path}: corrupt vocabulary ({'; '.join(problems)})")
+            raise DataFormatError(path, f"corrupt vocabulary ({'; '.join(problems)})")
 
 
 def train_vocabulary(
@@ -142,11 +142,11 @@ def train_vocabulary(
     ``progress(done, total)`` is called as nodes are clustered (``total`` grows while the tree
     does)."""
     if branching < 2 or depth < 1:
-        raise EvpError(f"a vocabulary needs branching >= 2 and depth >= 1, not {branching} and {depth}")
+        raise UsageError(f"a vocabulary needs branching >= 2 and depth >= 1, not {branching} and {depth}")
     sets = [np.ascontiguousarray(d, np.uint8).reshape(-1, DESCRIPTOR_BYTES) for d in descriptor_sets]
     descriptors = np.concatenate(sets) if sets else np.zeros((0, DESCRIPTOR_BYTES), np.uint8)
     if len(descriptors) < branching:
-        raise EvpError(f"{len(descriptors)} descriptors cannot train a vocabulary of {branching} branches")
+        raise DataError(f"{len(descriptors)} descriptors cannot train a vocabulary of {branching} branches")
     rng = np.random.default_rng(seed)
     centres = [np.zeros(DESCRIPTOR_BYTES, np.uint8)]
     children: list[list[int]] = [[]]

@@ -22,7 +22,7 @@ from run_sequences import SHARED, render_circle
 from evp.config import Settings
 from evp.io.registry import open_dataset
 from evp.pipeline import run_dataset, write_outputs
-from evp.run_setup import camera_for, make_estimator
+from evp.run_setup import camera_for, make_estimator, resolve_settings
 
 SEQUENCES = ["euroc_mh_01_easy_moving_360", "kitti_odom_06_f000-050", "davis_slider_depth"]
 TABLE_HEADER = (
@@ -34,6 +34,7 @@ TABLE_HEADER = (
 def _row(name: str, path: Path, mapping: str, out: Path) -> str:
     settings = Settings.model_validate({"estimator": "slam", "slam": {"mapping": mapping}})
     dataset = open_dataset(path)
+    settings = resolve_settings(settings, dataset)
     estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
     result = run_dataset(dataset, estimator, realtime_speed=1.0)
     metrics = write_outputs(result, dataset, settings, out / f"{name}-{mapping}")

@@ -10,7 +10,7 @@ import pytest
 from evp.config import OrbSettings, Settings, SlamSettings
 from evp.io.registry import open_dataset
 from evp.pipeline import run_dataset, write_outputs
-from evp.run_setup import camera_for, make_estimator
+from evp.run_setup import camera_for, make_estimator, resolve_settings
 from evp.slam.map import Map
 from evp.slam.system import SlamSystem
 from evp.slam.trials import cover_lens_then_revisit, relocalisation_error
@@ -21,7 +21,7 @@ from tests.conftest import shared
 @pytest.mark.parametrize(("sequence", "max_ate_m", "min_tracked"), [("euroc_mh_01_easy_moving_360", 0.0075, 0.98), ("kitti_odom_06_f000-050", 0.10, 0.95)])
 def test_sequence_meets_the_accuracy_target(tmp_path, sequence, max_ate_m, min_tracked):
     dataset = open_dataset(shared(sequence))
-    settings = Settings(estimator="slam")
+    settings = resolve_settings(Settings(estimator="slam"), dataset)
     result = run_dataset(dataset, make_estimator(camera_for(dataset, settings), settings, dataset))
     metrics = write_outputs(result, dataset, settings, tmp_path)
     assert metrics["tracked_fraction"] >= min_tracked

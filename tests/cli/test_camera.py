@@ -39,3 +39,8 @@ def test_calibrate_command_writes_opencv_yaml(tmp_path):
 def test_calibrate_bad_board_is_a_usage_error(tmp_path):
     result = evp("calibrate", tmp_path, "--pattern", "circles", "--cols", 9, "--rows", 7, "--square", 0.03)
     assert result.returncode == ExitCode.USAGE and "unknown board kind" in result.stderr
+
+
+def test_camera_rescale_to_a_bad_size_is_a_usage_error():
+    result = evp("camera", "nexus5x_640x380", "--width", -5, "--height", 10)
+    assert result.returncode == ExitCode.USAGE and "--width" in result.stderr

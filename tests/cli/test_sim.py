@@ -49,3 +49,5 @@ def test_sim_usage_errors(tmp_path):
     assert evp("sim").returncode == ExitCode.USAGE
     bad = evp("sim", "drone-flight", "--out", tmp_path / "y", "--gps-outage", "soon")
     assert bad.returncode == ExitCode.USAGE and "START:DURATION" in bad.stderr
+    too_short = evp("sim", "circle-indoor", "--out", tmp_path / "z", "--duration", 0.01)  # fewer than 4 motion samples
+    assert too_short.returncode == ExitCode.USAGE and "duration_s" in too_short.stderr

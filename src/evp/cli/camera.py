@@ -40,8 +40,8 @@ def calibrate(
 @app.command()
 def camera(
     source: str = typer.Argument(..., help="Calibration file (OpenCV, ROS, ORB-SLAM, Kalibr, EuRoC) or profile name."),
-    width: int | None = typer.Option(None, "--width", help="Rescale to this width (with --height)."),
-    height: int | None = typer.Option(None, "--height", help="Rescale to this height (with --width)."),
+    width: int | None = typer.Option(None, "--width", min=1, help="Rescale to this width (with --height)."),
+    height: int | None = typer.Option(None, "--height", min=1, help="Rescale to this height (with --width)."),
     out: Path | None = typer.Option(None, "--out", help="Write it as OpenCV FileStorage YAML."),
 ) -> None:
     """Show a camera model from a file or a shipped profile (e.g. nexus5x_640x380); list profiles with 'list'."""

@@ -34,7 +34,7 @@ class SimOptions(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    duration_s: float | None = Field(None, gt=0)
+    duration_s: float | None = Field(None, ge=0.15, description="seconds (at least 0.15: four motion samples; None: the scenario's)")
     seed: int = 0
     fps: float = Field(30.0, gt=0, le=240)
     camera: str | None = Field(None, description="camera preset: " + ", ".join(CAMERA_PRESETS))

@@ -18,8 +18,8 @@ from evo.core import metrics, sync
 from evo.tools import file_interface
 from results import Results
 
-from evp.eval.evaluate import EvaluationOptions, evaluate
-from evp.eval.metrics import Alignment
+from evp.config import EvalSettings
+from evp.eval.evaluate import evaluate
 from evp.io.trajectory import read_trajectory
 
 ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "reference_trajectories"
@@ -44,7 +44,7 @@ def _evo(ref_path: Path, est_path: Path, align: str) -> dict:
 
 
 def _ours(ref_path: Path, est_path: Path, align: str) -> dict:
-    summary = evaluate(read_trajectory(ref_path), read_trajectory(est_path), EvaluationOptions(Alignment(align))).summary()
+    summary = evaluate(read_trajectory(ref_path), read_trajectory(est_path), EvalSettings(align=align, max_time_diff_s=0.01)).summary()
     return {"ape": summary["ape_translation_m"], "rpe": summary["rpe"]["translation_m"]}
 
 

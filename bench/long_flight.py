@@ -28,7 +28,7 @@ from evp.config import Settings
 from evp.io.registry import open_dataset
 from evp.io.run_outputs import write_outputs
 from evp.pipeline import run_dataset
-from evp.run_setup import camera_for, make_estimator
+from evp.run_setup import camera_for, make_estimator, resolve_settings
 from evp.sim.generate import generate
 from evp.sim.scenarios import SimOptions
 
@@ -66,7 +66,7 @@ COLUMNS = [
 def _flight_record(texture: str, duration: float, out: Path, tmp: Path) -> dict:
     generate("drone-flight", SimOptions(duration_s=duration, fps=30.0, seed=1, altitude_m=60.0, texture=texture), tmp / texture, workers=2)
     dataset = open_dataset(tmp / texture)
-    settings = Settings(estimator="slam")
+    settings = resolve_settings(Settings(estimator="slam"), dataset)
     settings.slam.mapping = "thread"
     estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
     rss_start = _rss_mb()

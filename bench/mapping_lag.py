@@ -28,9 +28,8 @@ from results import Results
 from run_sequences import render_circle, settings_with_changes
 from scipy.spatial.transform import Rotation
 
-from evp.config import Settings
-from evp.eval.evaluate import EvaluationOptions, evaluate
-from evp.eval.metrics import Alignment
+from evp.config import EvalSettings, Settings
+from evp.eval.evaluate import evaluate
 from evp.io.registry import open_dataset
 from evp.io.vocabulary_files import load_configured_vocabulary
 from evp.slam.local_mapping import LocalMapper, NewKeyFrame
@@ -125,7 +124,7 @@ def drift_of_final_map_poses(dataset, estimates: list[PoseEstimate]) -> tuple[in
             poses.append(estimate.T_world_cam)
     stamps, poses = np.array(stamps), np.array(poses)
     truth = dataset.ground_truth
-    ate = evaluate(truth, Trajectory.from_poses(poses, stamps), EvaluationOptions(Alignment.SIM3, max_diff_s=0.01)).summary()["rmse"]
+    ate = evaluate(truth, Trajectory.from_poses(poses, stamps), EvalSettings(align="sim3", max_time_diff_s=0.01)).summary()["rmse"]
     true_rotations = Rotation.from_quat(truth.quats_xyzw[np.searchsorted(truth.timestamps, stamps - 1e-6)])
     estimated = Rotation.from_matrix(poses[:, :3, :3])
     first = min(int(np.searchsorted(stamps - dataset.frame_times[0], MOVING_AFTER_S)), len(stamps) - 1)  # a late start: its first frame

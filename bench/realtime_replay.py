@@ -28,7 +28,7 @@ from evp.config import Settings
 from evp.io.registry import open_dataset
 from evp.io.run_outputs import write_outputs
 from evp.pipeline import run_dataset
-from evp.run_setup import camera_for, make_estimator
+from evp.run_setup import camera_for, make_estimator, resolve_settings
 
 SEQUENCES = ["euroc_mh_01_easy_moving_360", "kitti_odom_06_f000-050", "davis_slider_depth"]
 COLUMNS = [
@@ -50,6 +50,7 @@ COLUMNS = [
 def _record(name: str, path: Path, mapping: str, out: Path) -> dict:
     settings = Settings.model_validate({"estimator": "slam", "slam": {"mapping": mapping}})
     dataset = open_dataset(path)
+    settings = resolve_settings(settings, dataset)
     estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
     result = run_dataset(dataset, estimator, realtime_speed=1.0)
     metrics = write_outputs(result, dataset, settings, out / f"{name}-{mapping}")

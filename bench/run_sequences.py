@@ -39,7 +39,7 @@ from evp.config import Settings
 from evp.io.registry import open_dataset
 from evp.io.run_outputs import write_outputs
 from evp.pipeline import run_dataset
-from evp.run_setup import camera_for, make_estimator
+from evp.run_setup import camera_for, make_estimator, resolve_settings
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 SEQUENCES = ["euroc_mh_01_easy_moving_360", "kitti_odom_06_f000-050", "davis_slider_depth", "aerial_nadir_odm_toledo_fc350"]
@@ -79,6 +79,7 @@ RELOCALISATION_COLUMNS = [
 
 def _record(name: str, path: Path, settings: Settings, out: Path) -> dict:
     dataset = open_dataset(path)
+    settings = resolve_settings(settings, dataset)
     estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
     result = run_dataset(dataset, estimator, None, settings.orb.n_features)
     metrics = write_outputs(result, dataset, settings, out / name)

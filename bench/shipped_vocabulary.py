@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from evp.config import OrbSettings
-from evp.vision.vocabulary import Vocabulary, default_vocabulary_path
+from evp.io.vocabulary_files import default_vocabulary_path, load_vocabulary
 from evp.vocabulary_training import build_vocabulary, rendered_descriptors
 
 
@@ -31,7 +31,7 @@ def main() -> int:
     rendered = time.perf_counter()
     built = build_vocabulary(sets, sources, 10, 4, orb)
     trained = time.perf_counter()
-    shipped = Vocabulary.load(default_vocabulary_path())
+    shipped = load_vocabulary(default_vocabulary_path())
     checks = {
         "tree (centres, children)": np.array_equal(built.centres, shipped.centres) and np.array_equal(built.children, shipped.children),
         "word weights (idf)": bool(np.allclose(built.idf, shipped.idf)),

@@ -38,12 +38,21 @@ class CameraSettings(_Section):
 
 
 class EvalSettings(_Section):
-    align: Literal["none", "se3", "sim3"] = "sim3"
+    """How a trajectory is compared with its reference (``evp run``, ``evp eval``; evo's conventions)."""
+
+    align: Literal["none", "se3", "sim3"] = Field("sim3", description="Umeyama alignment of the estimate before the errors are taken")
     n_align: int | None = Field(None, ge=3, description="align on the first N matched poses only")
-    max_time_diff_s: float = Field(0.01, gt=0)
-    time_offset_s: float = 0.0
-    rpe_delta: float = Field(1.0, gt=0)
+    max_time_diff_s: float | None = Field(
+        None,
+        gt=0,
+        description="largest time difference of matched poses; None: half the dataset's median frame period, so each estimate matches at most its own frame's stamp (evp run writes the number it used)",
+    )
+    time_offset_s: float = Field(0.0, description="added to the estimate's stamps")
+    rpe_delta: float = Field(1.0, gt=0, description="relative pose error pair distance")
     rpe_unit: Literal["frames", "m"] = "frames"
+    rpe_all_pairs: bool = Field(False, description="every pair at the distance, not consecutive ones")
+    z_target_m: float | None = Field(None, description="also report the poses whose reference z is within z_tolerance_m of this")
+    z_tolerance_m: float = Field(2.0, gt=0)
 
 
 class VoSettings(_Section):

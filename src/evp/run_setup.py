@@ -1,4 +1,4 @@
-"""Choosing the camera model and building the estimator for a run from the settings."""
+"""Choosing the camera model, making the settings concrete for a dataset, and building the estimator."""
 
 from __future__ import annotations
 
@@ -23,12 +23,36 @@ def camera_for(dataset: Dataset, settings: Settings) -> CameraModel:
     return dataset.camera
 
 
+def median_frame_period(dataset: Dataset) -> float:
+    """Median seconds between frames (a dataset of at least two frames)."""
+    return float(np.median(np.diff(dataset.frame_times)))
+
+
+def auto_estimator(dataset: Dataset | None) -> str:
+    """What ``estimator: auto`` runs: nadir homography odometry for sparse imagery (frames more
+    than 1 s apart, e.g. survey photos), else SLAM (also when no dataset is known, as live)."""
+    sparse = dataset is not None and dataset.num_frames > 1 and median_frame_period(dataset) > 1.0
+    return "nadir" if sparse else "slam"
+
+
+def resolve_settings(settings: Settings, dataset: Dataset) -> Settings:
+    """The settings with each default that depends on the dataset made concrete, so that the
+    settings.yaml written beside the results says what ran: ``estimator: auto`` becomes the
+    estimator it picks, and ``eval.max_time_diff_s: None`` half the median frame period (each
+    estimate matches at most its own frame's ground-truth stamp; 0.01 s below two frames)."""
+    estimator = auto_estimator(dataset) if settings.estimator == "auto" else settings.estimator
+    max_time_diff_s = settings.eval.max_time_diff_s
+    if max_time_diff_s is None:
+        max_time_diff_s = 0.5 * median_frame_period(dataset) if dataset.num_frames >= 2 else 0.01
+    evaluation = settings.eval.model_copy(update={"max_time_diff_s": max_time_diff_s})
+    return settings.model_copy(update={"estimator": estimator, "eval": evaluation})
+
+
 def make_estimator(camera: CameraModel, settings: Settings, dataset: Dataset | None = None) -> Estimator:
     """The configured estimator; ``auto`` picks by the frame spacing of the dataset."""
     kind = settings.estimator
     if kind == "auto":
-        sparse = dataset is not None and dataset.num_frames > 1 and float(np.median(np.diff(dataset.frame_times))) > 1.0
-        kind = "nadir" if sparse else "slam"
+        kind = auto_estimator(dataset)
     if kind == "nadir":
         from evp.vo.nadir_homography import NadirHomographyOdometry
 

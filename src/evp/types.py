@@ -195,7 +195,7 @@ class CameraModel:
             raise ValueError(f"camera resolution must be positive, got {self.width}x{self.height}")
         if not (self.fx > 0 and self.fy > 0):
             raise ValueError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
-        values = (self.cx, self.cy, self.k1, self.k2, self.p1, self.p2, self.k3)
+        values = (self.fx, self.fy, self.cx, self.cy, self.k1, self.k2, self.p1, self.p2, self.k3)
         if not all(np.isfinite(values)):
             raise ValueError("camera parameters must be finite numbers")
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from evp import __version__
 from evp.config import OrbSettings
-from evp.errors import EvpError
+from evp.errors import DatasetError
 from evp.vision.orb import OrbExtractor
 from evp.vision.vocabulary import Vocabulary, train_vocabulary
 
@@ -45,7 +45,7 @@ def dataset_descriptors(paths: list[Path], every: int, orb: OrbSettings, on_imag
     for path in paths:
         dataset = open_dataset(path)
         if dataset.num_frames == 0:
-            raise EvpError(f"{path}: no camera frames to train a vocabulary on ({dataset.format})")
+            raise DatasetError(path, f"no camera frames to train a vocabulary on ({dataset.format})")
         extractor = OrbExtractor(orb, dataset.camera)
         for index, frame in enumerate(dataset.frames()):
             if index % every == 0:

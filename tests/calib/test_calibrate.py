@@ -6,7 +6,7 @@ import pytest
 
 from evp.calib.calibrate import BoardSpec, calibrate_views, images_from_path
 from evp.calib.profiles import load_profile
-from evp.errors import CalibrationError
+from evp.errors import CalibrationError, UsageError
 from evp.sim.calibration_target import charuco_texture, chessboard_texture, random_board_poses, render_board
 
 NEXUS = load_profile("nexus5x_640x380")
@@ -64,9 +64,9 @@ def test_too_few_views_is_a_clear_error():
 
 
 def test_board_spec_validation():
-    with pytest.raises(ValueError):
+    with pytest.raises(UsageError):
         BoardSpec("circles", 9, 7, 0.03)
-    with pytest.raises(ValueError):
+    with pytest.raises(UsageError):
         BoardSpec("charuco", 9, 7, 0.03, 0.04)
 
 

@@ -9,7 +9,8 @@ evo_file = pytest.importorskip("evo.tools.file_interface")
 from evo.core import metrics, sync  # noqa: E402
 from evo.core.trajectory import PoseTrajectory3D  # noqa: E402
 
-from evp.eval.cli_support import run_evaluation  # noqa: E402
+from evp.cli.evaluation import evaluate_files  # noqa: E402
+from evp.config import EvalSettings  # noqa: E402
 from evp.io.trajectory import write_trajectory  # noqa: E402
 from evp.types import Trajectory  # noqa: E402
 from tests.conftest import shared  # noqa: E402
@@ -77,7 +78,7 @@ def test_matches_evo(ref, est, align, n_align, rpe_delta, rpe_unit):
     root = shared("reference_trajectories")
     evo_unit = metrics.Unit.frames if rpe_unit == "frames" else metrics.Unit.meters
     theirs = _evo_results(root / ref, root / est, align, n_align, rpe_delta, evo_unit)
-    result = run_evaluation(root / ref, root / est, align, n_align, 0.01, 0.0, None, None, rpe_delta, rpe_unit, None, 2.0)
+    result = evaluate_files(root / ref, root / est, EvalSettings(align=align, n_align=n_align, max_time_diff_s=0.01, rpe_delta=rpe_delta, rpe_unit=rpe_unit))
     summary = result.summary()
     _assert_close(summary["ape_translation_m"], theirs["ape_t"], "APE translation")
     _assert_close(summary["ape_rotation_deg"], theirs["ape_r"], "APE rotation")
@@ -100,6 +101,6 @@ def test_georeferenced_utm_precision(tmp_path):
     est = Trajectory(positions, ref.quats_xyzw, ref.timestamps + 0.003, "est")
     write_trajectory(tmp_path / "est.tum", est)
     theirs = _evo_results(path, tmp_path / "est.tum", "sim3", None, 1, metrics.Unit.frames)
-    ours = run_evaluation(path, tmp_path / "est.tum", "sim3", None, 0.01, 0.0, None, None, 1, "frames", None, 2.0).summary()
+    ours = evaluate_files(path, tmp_path / "est.tum", EvalSettings(align="sim3", max_time_diff_s=0.01)).summary()
     _assert_close(ours["ape_translation_m"], theirs["ape_t"], "APE translation")
     assert ours["ape_translation_m"]["rmse"] < 0.2

@@ -2,9 +2,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from evp.config import EvalSettings
 from evp.errors import EvaluationError
 from evp.eval.association import associate
-from evp.eval.evaluate import EvaluationOptions, evaluate
+from evp.eval.evaluate import evaluate
 from evp.eval.metrics import Alignment, DeltaUnit, rpe_pairs
 from evp.eval.statistics import error_statistics
 from evp.geometry.alignment import Similarity
@@ -28,7 +29,7 @@ def test_alignment_removes_an_exact_transform(mode):
     ref = _helix()
     scale = 1.0 if mode is Alignment.SE3 else 0.3
     est = _transformed(ref, Similarity(Rotation.from_euler("z", 40, degrees=True).as_matrix(), np.array([5.0, 1.0, -2.0]), scale))
-    result = evaluate(ref, est, EvaluationOptions(align=mode))
+    result = evaluate(ref, est, EvalSettings(align=mode.value, max_time_diff_s=0.01))
     assert result.summary()["rmse"] < 1e-9
     assert result.summary()["ape_rotation_deg"]["max"] < 1e-6
     assert result.alignment.scale == pytest.approx(1 / scale)
@@ -37,7 +38,7 @@ def test_alignment_removes_an_exact_transform(mode):
 def test_no_alignment_reports_the_offset():
     ref = _helix()
     est = _transformed(ref, Similarity(np.eye(3), np.array([0.0, 0.3, 0.4])))
-    summary = evaluate(ref, est, EvaluationOptions(align=Alignment.NONE)).summary()
+    summary = evaluate(ref, est, EvalSettings(align="none", max_time_diff_s=0.01)).summary()
     assert summary["rmse"] == pytest.approx(0.5)
     assert summary["xy_rmse"] == pytest.approx(0.3)
     assert summary["matched_poses"] == 200
@@ -48,7 +49,7 @@ def test_alignment_on_first_poses_only_exposes_later_drift():
     positions = ref.positions.copy()
     positions[100:, 0] += np.linspace(0, 1.0, 100)  # drift after pose 100
     est = Trajectory(positions, ref.quats_xyzw, ref.timestamps)
-    result = evaluate(ref, est, EvaluationOptions(align=Alignment.SE3, n_align=50))
+    result = evaluate(ref, est, EvalSettings(align="se3", n_align=50, max_time_diff_s=0.01))
     assert result.ape_translation[:100].max() < 1e-9
     assert result.ape_translation[-1] == pytest.approx(1.0)
 
@@ -77,7 +78,7 @@ def test_statistics_of_known_errors():
 def test_z_subset_selects_poses_near_target_altitude():
     ref = _helix()
     est = _transformed(ref, Similarity(np.eye(3), np.array([0.1, 0.0, 0.0])))
-    summary = evaluate(ref, est, EvaluationOptions(align=Alignment.NONE, z_target_m=1.0, z_tolerance_m=0.5)).summary()
+    summary = evaluate(ref, est, EvalSettings(align="none", max_time_diff_s=0.01, z_target_m=1.0, z_tolerance_m=0.5)).summary()
     expected = int(np.sum(np.abs(ref.positions[:, 2] - 1.0) < 0.5))
     assert summary["subset"]["poses"] == expected > 0
     assert summary["subset"]["ape_translation_m"]["mean"] == pytest.approx(0.1)

@@ -46,15 +46,15 @@ def test_scenario_generates_and_loads(tmp_path, scenario):
 
 
 def test_camera_ground_truth_matches_body_ground_truth_times_extrinsics(tmp_path):
-    from evp.eval.evaluate import EvaluationOptions, evaluate
-    from evp.eval.metrics import Alignment
+    from evp.config import EvalSettings
+    from evp.eval.evaluate import evaluate
     from evp.io.trajectory import read_trajectory
 
     generate("wheel-robot-room", SimOptions(duration_s=2.0, fps=10.0), tmp_path, workers=1)
     dataset = open_dataset(tmp_path)
     camera_truth = read_trajectory(tmp_path / "groundtruth_cam0_tum.txt")
     assert camera_truth.timestamps[0] == pytest.approx(EPOCH_S)
-    summary = evaluate(dataset.ground_truth, camera_truth, EvaluationOptions(Alignment.NONE, max_diff_s=1e-6)).summary()
+    summary = evaluate(dataset.ground_truth, camera_truth, EvalSettings(align="none", max_time_diff_s=1e-6)).summary()
     assert summary["matched_poses"] == len(camera_truth)
     assert summary["max"] < 1e-9 and summary["ape_rotation_deg"]["max"] < 1e-6
 

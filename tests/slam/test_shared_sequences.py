@@ -13,7 +13,7 @@ from evp.io.registry import open_dataset
 from evp.io.run_outputs import write_outputs
 from evp.io.vocabulary_files import default_vocabulary_path, load_vocabulary
 from evp.pipeline import run_dataset
-from evp.run_setup import camera_for, make_estimator
+from evp.run_setup import camera_for, make_estimator, resolve_settings
 from evp.slam.system import SlamSystem
 from evp.types import TrackingState
 from tests.conftest import shared
@@ -25,7 +25,7 @@ VOCABULARY = load_vocabulary(default_vocabulary_path())
 @pytest.mark.parametrize(("sequence", "max_ate_m", "min_tracked"), [("euroc_mh_01_easy_moving_360", 0.0075, 0.98), ("kitti_odom_06_f000-050", 0.10, 0.95)])
 def test_sequence_meets_the_accuracy_target(tmp_path, sequence, max_ate_m, min_tracked):
     dataset = open_dataset(shared(sequence))
-    settings = Settings(estimator="slam")
+    settings = resolve_settings(Settings(estimator="slam"), dataset)
     result = run_dataset(dataset, make_estimator(camera_for(dataset, settings), settings, dataset))
     metrics = write_outputs(result, dataset, settings, tmp_path)
     assert metrics["tracked_fraction"] >= min_tracked

@@ -7,10 +7,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from evp.config import OrbSettings, SlamSettings
+from evp.config import EvalSettings, OrbSettings, SlamSettings
 from evp.errors import EvpError
-from evp.eval.evaluate import EvaluationOptions, evaluate
-from evp.eval.metrics import Alignment
+from evp.eval.evaluate import evaluate
 from evp.geometry.transforms import se3_inverse
 from evp.io.map_files import load_map, save_map, write_map_ply
 from evp.io.registry import open_dataset
@@ -46,7 +45,7 @@ def _system(dataset):
 def _ate(dataset, slam: SlamSystem) -> float:
     stamps, poses = slam.refined_trajectory()
     trajectory = Trajectory.from_poses(poses, stamps)
-    return evaluate(dataset.ground_truth, trajectory, EvaluationOptions(Alignment.SIM3, max_diff_s=0.01)).summary()["rmse"]
+    return evaluate(dataset.ground_truth, trajectory, EvalSettings(align="sim3", max_time_diff_s=0.01)).summary()["rmse"]
 
 
 def test_noise_free_tracking_has_near_zero_error(circle, tmp_path):

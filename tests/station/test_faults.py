@@ -14,9 +14,10 @@ import pytest
 import websockets
 
 from evp.io.registry import open_dataset
-from evp.station.protocol import PROTOCOL_VERSION, CameraConfig, Config, Hello, ImageMessage, decode_text, encode, encode_image
+from evp.station.protocol import PROTOCOL_VERSION, Config, Hello, ImageMessage, decode_text, encode, encode_image
 from evp.station.recording import decoded_messages, has_summary
 from evp.station.store import SessionStore
+from evp.types import CameraModel
 from tests.conftest import SAMPLE
 from tests.station.conftest import OperatorFeed, committed, insecure_tls, running_station
 
@@ -26,7 +27,7 @@ TOKEN = "s3cret"
 @pytest.fixture(scope="module")
 def frames():
     dataset = open_dataset(SAMPLE)
-    return CameraConfig.from_camera(dataset.camera), list(dataset.frames())[:12]
+    return dataset.camera, list(dataset.frames())[:12]
 
 
 async def _connect(url: str):
@@ -44,7 +45,7 @@ async def _until(connection, wanted: str, timeout: float = 60.0):
         seen.append(message)
 
 
-async def _open_session(url: str, camera: CameraConfig, resume: str | None = None):
+async def _open_session(url: str, camera: CameraModel, resume: str | None = None):
     connection = await _connect(url)
     await connection.send(encode(Hello(protocol=PROTOCOL_VERSION, token=TOKEN, device="test", resume=resume)))
     welcome, _ = await _until(connection, "welcome")

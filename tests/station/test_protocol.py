@@ -67,7 +67,7 @@ def test_images_round_trip(encoding, channels):
         ('{"type": "telemetry", "kind": "imu", "timestamp": 1, "gyro_rad_s": [0, 0], "accel_m_s2": [0, 0, 9.8]}', "malformed", "gyro_rad_s"),
         ('{"type": "telemetry", "kind": "gps", "timestamp": 1, "latitude_deg": 91, "longitude_deg": 0, "altitude_m": 0}', "malformed", "latitude_deg"),
         ('{"type": "telemetry", "kind": "baro", "timestamp": NaN, "pressure_pa": 1e5}', "malformed", "not JSON"),
-        ('{"type": "config", "camera": {"width": 640, "height": 380, "fx": -1, "fy": 1, "cx": 0, "cy": 0}}', "malformed", "camera.fx"),
+        ('{"type": "config", "camera": {"width": 640, "height": 380, "fx": -1, "fy": 1, "cx": 0, "cy": 0}}', "malformed", "focal lengths must be positive"),
         ('{"type": "enable", "enabled": "maybe"}', "malformed", "enabled"),
         ("[" * 5000 + "]" * 5000, "malformed", ""),
         (json.dumps({"type": "log", "text": "x" * (MAX_TEXT_BYTES + 1)}), "oversized", "limit"),
@@ -157,3 +157,30 @@ def test_fuzzed_images_raise_only_protocol_errors(payload, version, encoding, le
             image_pixels(decode_image(data))
         except ProtocolError:
             pass
+
+
+def test_protocol_errors_are_link_errors_and_codes_are_checked_without_assert():
+    from evp.errors import EvpError, ExitCode, LinkError
+
+    error = ProtocolError("malformed", "x")
+    assert isinstance(error, LinkError) and isinstance(error, EvpError) and error.exit_code == ExitCode.LINK
+    with pytest.raises(ValueError, match="unknown protocol error code"):
+        ProtocolError("no_such_code", "x")
+
+
+def test_config_carries_the_one_camera_model_and_orb_settings():
+    from evp.config import OrbSettings
+    from evp.types import CameraModel
+
+    camera = CameraModel(640, 380, 494.1, 494.2, 319.9, 173.6, k1=0.04, name="phone")
+    message = Config(camera=camera, orb=OrbSettings(n_features=1500))
+    wire = json.loads(encode(message))
+    assert "name" not in wire["camera"] and wire["camera"]["k1"] == 0.04 and wire["orb"]["n_features"] == 1500
+    decoded = decode_text(encode(message))
+    assert isinstance(decoded.camera, CameraModel) and decoded.camera == CameraModel(640, 380, 494.1, 494.2, 319.9, 173.6, k1=0.04)
+    assert isinstance(decoded.orb, OrbSettings) and decoded.orb.n_features == 1500
+    for bad, words in (({"fx": 1e999}, "finite"), ({"width": 9000}, "at most 8192")):
+        fields = {"width": 640, "height": 380, "fx": 494.1, "fy": 494.2, "cx": 319.9, "cy": 173.6, **bad}
+        with pytest.raises(ProtocolError, match=words) as info:
+            decode_text(json.dumps({"type": "config", "camera": fields}).replace("Infinity", "1e999"))
+        assert info.value.code == "malformed"

@@ -8,10 +8,9 @@ import pytest
 from evp.errors import EvpError
 from evp.eval.evaluate import EvaluationOptions, evaluate
 from evp.eval.metrics import Alignment
-from evp.io.trajectory import Trajectory
 from evp.sim.scenarios import SimOptions, build_scenario
 from evp.sim.world import Renderer
-from evp.types import Frame, PoseEstimate, TrackingState
+from evp.types import Frame, PoseEstimate, TrackingState, Trajectory
 from evp.vo.klt_vo import KltVisualOdometry
 
 # seed 000's indoor circle (camera down 1.2 m above a textured floor, the Nexus 5X lens with its

@@ -11,7 +11,7 @@ from evp.config import Settings
 from evp.io.registry import open_dataset
 from evp.io.run_outputs import write_outputs
 from evp.pipeline import run_dataset
-from evp.run_setup import camera_for, make_estimator
+from evp.run_setup import camera_for, make_estimator, resolve_settings
 from evp.types import CameraModel, Frame, TrackingState
 from evp.vo.nadir_homography import NadirHomographyOdometry
 from tests.conftest import shared
@@ -88,7 +88,8 @@ def test_real_survey_meets_the_target(tmp_path):
     """Issue target with a 5 % margin: >= 90 % of the 47 photos localised, ATE <= 5 m against GPS
     (COLMAP offline: 1.54 m; ORB-SLAM3 never initialises)."""
     dataset = open_dataset(shared("aerial_nadir_odm_toledo_fc350"))
-    settings = Settings()  # auto: survey photos 10 s apart go to the nadir odometry
+    settings = resolve_settings(Settings(), dataset)  # auto: survey photos 10 s apart go to the nadir odometry
+    assert settings.estimator == "nadir"
     result = run_dataset(dataset, make_estimator(camera_for(dataset, settings), settings, dataset))
     metrics = write_outputs(result, dataset, settings, tmp_path)
     assert metrics["tracked_fraction"] >= 0.9

@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from evp.errors import CalibrationError
+from evp.errors import CalibrationError, UsageError
 from evp.types import CameraModel
 from evp.vision.images import to_grey
 
@@ -33,11 +33,11 @@ class BoardSpec:
 
     def __post_init__(self) -> None:
         if self.kind not in ("chessboard", "charuco"):
-            raise ValueError(f"unknown board kind {self.kind!r} (chessboard or charuco)")
+            raise UsageError(f"unknown board kind {self.kind!r} (chessboard or charuco)")
         if self.cols < 3 or self.rows < 3 or self.square_m <= 0:
-            raise ValueError("a board needs at least 3x3 squares and a positive square size")
+            raise UsageError("a board needs at least 3x3 squares and a positive square size")
         if self.kind == "charuco" and not 0 < self.marker_m < self.square_m:
-            raise ValueError("ChArUco markers must be smaller than the squares")
+            raise UsageError("ChArUco markers must be smaller than the squares")
 
     @property
     def inner_corners(self) -> tuple[int, int]:

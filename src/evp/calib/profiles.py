@@ -7,7 +7,7 @@ from pathlib import Path
 
 from evp.calib.camera_files import read_camera
 from evp.config import CameraSettings
-from evp.errors import EvpError
+from evp.errors import UsageError
 from evp.types import CameraModel
 
 
@@ -23,7 +23,7 @@ def load_profile(name: str) -> CameraModel:
     """A shipped camera profile by name, e.g. ``nexus5x_640x380`` (seed 000's phone)."""
     path = _profile_dir() / f"{name}.yaml"
     if not path.is_file():
-        raise EvpError(f"unknown camera profile {name!r}; known: {', '.join(profile_names())}")
+        raise UsageError(f"unknown camera profile {name!r}; known: {', '.join(profile_names())}")
     return read_camera(path)
 
 

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from evp.config import EvalSettings
 from evp.errors import EvaluationError
 from evp.eval.association import associate
 from evp.eval.metrics import (
@@ -24,21 +25,8 @@ from evp.types import Trajectory
 
 
 @dataclass(frozen=True)
-class EvaluationOptions:
-    align: Alignment = Alignment.SIM3
-    n_align: int | None = None  # align on the first N matched poses only
-    max_diff_s: float = 0.01
-    offset_s: float = 0.0  # added to the estimate's stamps
-    rpe_delta: float = 1.0
-    rpe_unit: DeltaUnit = DeltaUnit.FRAMES
-    rpe_all_pairs: bool = False
-    z_target_m: float | None = None  # subset: poses whose reference z is near this value
-    z_tolerance_m: float = 2.0
-
-
-@dataclass(frozen=True)
 class EvaluationResult:
-    options: EvaluationOptions
+    options: EvalSettings
     ref: Trajectory  # matched reference poses
     est: Trajectory  # matched estimate poses, aligned
     alignment: Similarity
@@ -59,7 +47,7 @@ class EvaluationResult:
         if self.rpe is not None:
             out["rpe"] = {
                 "delta": self.options.rpe_delta,
-                "unit": self.options.rpe_unit.value,
+                "unit": self.options.rpe_unit,
                 "pairs": len(self.rpe.pairs),
                 "translation_m": error_statistics(self.rpe.translation),
                 "rotation_deg": error_statistics(self.rpe.rotation_deg),
@@ -73,7 +61,7 @@ class EvaluationResult:
                 "xy_rmse": float(np.sqrt(np.mean(self.ape_translation_xy[self.subset_mask] ** 2))) if selected.size else None,
             }
         out["alignment"] = {
-            "mode": self.options.align.value,
+            "mode": self.options.align,
             "n_align": self.options.n_align,
             "scale": self.alignment.scale,
             "rotation": self.alignment.rotation.tolist(),
@@ -82,24 +70,29 @@ class EvaluationResult:
         }
         out["reference_path_length_m"] = self.ref.path_length
         out["options"] = {
-            "align": self.options.align.value,
+            "align": self.options.align,
             "n_align": self.options.n_align,
-            "max_diff_s": self.options.max_diff_s,
-            "offset_s": self.options.offset_s,
+            "max_diff_s": self.options.max_time_diff_s,
+            "offset_s": self.options.time_offset_s,
             "rpe_delta": self.options.rpe_delta,
-            "rpe_unit": self.options.rpe_unit.value,
+            "rpe_unit": self.options.rpe_unit,
             "z_target_m": self.options.z_target_m,
             "z_tolerance_m": self.options.z_tolerance_m,
         }
         return out
 
 
-def evaluate(ref: Trajectory, est: Trajectory, options: EvaluationOptions = EvaluationOptions()) -> EvaluationResult:
-    """Associate, align, and compute APE (translation, XY, rotation), RPE and the z subset."""
-    ref_matched, est_matched = associate(ref, est, options.max_diff_s, options.offset_s)
-    aligned, transform = align_trajectory(ref_matched, est_matched, options.align, options.n_align)
+def evaluate(ref: Trajectory, est: Trajectory, options: EvalSettings) -> EvaluationResult:
+    """Associate, align, and compute APE (translation, XY, rotation), RPE and the z subset.
+
+    ``options.max_time_diff_s`` must be a number: a None (the frame-rate default) is resolved
+    where the dataset is known (``evp.run_setup.resolve_settings``)."""
+    if options.max_time_diff_s is None:
+        raise ValueError("max_time_diff_s is unresolved: give the number of seconds (resolve_settings does for a dataset)")
+    ref_matched, est_matched = associate(ref, est, options.max_time_diff_s, options.time_offset_s)
+    aligned, transform = align_trajectory(ref_matched, est_matched, Alignment(options.align), options.n_align)
     try:
-        rpe = relative_pose_errors(ref_matched, aligned, options.rpe_delta, options.rpe_unit, options.rpe_all_pairs)
+        rpe = relative_pose_errors(ref_matched, aligned, options.rpe_delta, DeltaUnit(options.rpe_unit), options.rpe_all_pairs)
     except EvaluationError:
         rpe = None
     mask = None

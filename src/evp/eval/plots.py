@@ -30,7 +30,7 @@ def plot_top_view(result: EvaluationResult, path: Path) -> Path:
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_aspect("equal", adjustable="datalim")
-    ax.set_title(f"Top view, {result.options.align.value} alignment")
+    ax.set_title(f"Top view, {result.options.align} alignment")
     ax.legend(loc="best")
     ax.grid(alpha=0.3)
     return _save(fig, path)

@@ -16,8 +16,8 @@ def markdown_summary(result: EvaluationResult, ref_name: str, est_name: str) -> 
     lines = [
         f"# Trajectory evaluation: `{est_name}` vs `{ref_name}`",
         "",
-        f"- matched poses: {summary['matched_poses']} (max time difference {result.options.max_diff_s} s, offset {result.options.offset_s} s)",
-        f"- alignment: {result.options.align.value}"
+        f"- matched poses: {summary['matched_poses']} (max time difference {result.options.max_time_diff_s} s, offset {result.options.time_offset_s} s)",
+        f"- alignment: {result.options.align}"
         + (f" on the first {result.options.n_align} poses" if result.options.n_align else "")
         + f", scale {result.alignment.scale:.6g}",
         *(["- alignment is degenerate (collinear positions): the rotation about that line is not observable"] if result.alignment.degenerate else []),

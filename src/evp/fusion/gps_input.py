@@ -7,12 +7,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from evp.errors import EvpError
+from evp.errors import DataError
 from evp.fusion.geodesy import EnuFrame
 from evp.types import GpsFix
 
 
-class AlignmentError(EvpError):
+class AlignmentError(DataError):
     """The GPS/odometry data cannot give a trustworthy alignment (too few pairs, no lock...)."""
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evp.errors import EvpError
+from evp.errors import DataFormatError
 from evp.slam.map import Map
 
 MAP_FORMAT_VERSION = 2  # 2: keyframes carry bag-of-words vectors (1: thumbnails)
@@ -42,9 +42,9 @@ def load_map(path: Path, scale_factors: np.ndarray) -> Map:
             data = {name: archive[name] for name in archive.files}
         meta = json.loads(str(data["meta"]))
     except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as exc:
-        raise EvpError(f"{path}: not an EVP map file ({exc})") from exc
+        raise DataFormatError(path, f"not an EVP map file ({exc})") from exc
     if meta.get("format") != "evp-map":
-        raise EvpError(f"{path}: not an EVP map file")
+        raise DataFormatError(path, "not an EVP map file")
     if meta.get("version") != MAP_FORMAT_VERSION:
-        raise EvpError(f"{path}: map format version {meta.get('version')}; this EVP reads version {MAP_FORMAT_VERSION} (build the map again)")
+        raise DataFormatError(path, f"map format version {meta.get('version')}; this EVP reads version {MAP_FORMAT_VERSION} (build the map again)")
     return Map.from_arrays(data, (meta["next_kf"], meta["next_point"]), scale_factors)

@@ -41,13 +41,6 @@ def run_timing(result: RunResult) -> dict:
     return timing
 
 
-def _max_time_difference(dataset: Dataset) -> float:
-    """Half a frame period: each estimate matches at most its own ground-truth stamp."""
-    if dataset.num_frames < 2:
-        return 0.01
-    return float(0.5 * np.median(np.diff(dataset.frame_times)))
-
-
 def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: Path) -> dict:
     """trajectory.tum, states.csv, timing.json, metrics.json (+ plots) when ground truth exists,
     settings.yaml; trajectory_live.tum (the poses as answered live) when trajectory.tum holds a
@@ -90,12 +83,11 @@ def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: 
         **estimator.report(),
     }
     if dataset.ground_truth is not None and len(trajectory) >= 3:
-        from evp.eval.evaluate import EvaluationOptions, evaluate
-        from evp.eval.metrics import Alignment
+        from evp.eval.evaluate import evaluate
         from evp.eval.report import write_report
 
         try:
-            evaluation = evaluate(dataset.ground_truth, trajectory, EvaluationOptions(Alignment.SIM3, max_diff_s=_max_time_difference(dataset)))
+            evaluation = evaluate(dataset.ground_truth, trajectory, settings.eval)  # settings resolved for the dataset (resolve_settings)
         except EvaluationError as exc:
             metrics["evaluation_error"] = str(exc)
         else:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evp.errors import EvpError
+from evp.errors import DataFormatError
 from evp.vision.vocabulary import Vocabulary
 
 FORMAT = "evp-orb-vocabulary"
@@ -38,15 +38,15 @@ def load_vocabulary(path: Path) -> Vocabulary:
             data = {name: archive[name] for name in archive.files}
         meta = json.loads(str(data["meta"]))
     except FileNotFoundError as exc:
-        raise EvpError(f"{path}: no such vocabulary file") from exc
+        raise DataFormatError(path, "no such vocabulary file") from exc
     except Exception as exc:  # a zip, pickle or JSON error: the file is not what it should be
-        raise EvpError(f"{path}: not an EVP vocabulary file ({exc})") from exc
+        raise DataFormatError(path, f"not an EVP vocabulary file ({exc})") from exc
     if meta.get("format") != FORMAT:
-        raise EvpError(f"{path}: not an EVP vocabulary file")
+        raise DataFormatError(path, "not an EVP vocabulary file")
     vocabulary = Vocabulary(meta["branching"], meta["depth"], data["centres"], data["children"], data["word_of_node"], data["idf"], meta.get("notes", {}))
     problems = vocabulary.problems()
     if problems:
-        raise EvpError(f"{path}: corrupt vocabulary ({'; '.join(problems)})")
+        raise DataFormatError(path, f"corrupt vocabulary ({'; '.join(problems)})")
     return vocabulary
 
 

@@ -18,12 +18,11 @@ from urllib.parse import urlsplit, urlunsplit
 
 import numpy as np
 
-from evp.errors import EvpError
+from evp.errors import LinkError
 from evp.mobile.sources import StreamSource, telemetry_message
 from evp.station.protocol import (
     PROTOCOL_VERSION,
     Bye,
-    CameraConfig,
     Config,
     Dropped,
     Enable,
@@ -43,7 +42,7 @@ READY_TIMEOUT_S = 120.0
 DRAIN_TIMEOUT_S = 60.0
 
 
-class StreamError(EvpError):
+class StreamError(LinkError):
     """The station refused the stream or the link failed."""
 
 
@@ -166,8 +165,7 @@ class StreamClient:
             self.report.session_id = welcome.session_id
             self._first_seq = welcome.next_seq  # a resumed session continues its numbering
             receiver = asyncio.create_task(self._receive(connection))
-            camera = CameraConfig.from_camera(source.camera)
-            await connection.send(encode(Config(camera=camera, fps=source.fps, encoding=encoding, color_space="bgr")))
+            await connection.send(encode(Config(camera=source.camera, fps=source.fps, encoding=encoding, color_space="bgr")))
             try:
                 await asyncio.wait_for(self._ready.wait(), READY_TIMEOUT_S)
             except TimeoutError:

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import cv2
 
-from evp.errors import DatasetError, EvpError
+from evp.errors import CalibrationError, DataError, DatasetError
 from evp.io.dataset import TelemetryRecord
 from evp.types import BaroSample, CameraModel, Frame, GpsFix, ImuSample, WheelOdometry, WifiScan
 
@@ -55,7 +55,7 @@ def _open_capture(spec: str, camera_spec: str | None, max_frames: int | None) ->
     target: int | str = int(spec.split(":", 1)[1]) if spec.startswith("camera:") else spec
     capture = cv2.VideoCapture(target)
     if not capture.isOpened():
-        raise EvpError(f"{spec}: cannot open (no such camera, or the URL does not serve a video/MJPEG stream)")
+        raise DataError(f"{spec}: cannot open (no such camera, or the URL does not serve a video/MJPEG stream)")
     width, height = int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT))
     fps = capture.get(cv2.CAP_PROP_FPS) or 30.0
     camera = _camera_model(camera_spec, width, height)
@@ -79,7 +79,7 @@ def _dataset_items(dataset, max_frames: int | None, errors: list[DatasetError]) 
 def _first_frame_size(dataset, spec: str) -> tuple[int, int]:
     first = next(iter(dataset.frames()), None)
     if first is None:
-        raise EvpError(f"{spec}: no frame could be read")
+        raise DataError(f"{spec}: no frame could be read")
     return first.image.shape[1], first.image.shape[0]
 
 
@@ -96,7 +96,7 @@ def open_source(spec: str, camera_spec: str | None = None, max_frames: int | Non
         size = (dataset.camera.width, dataset.camera.height) if dataset.camera else _first_frame_size(dataset, spec)
         camera = _camera_model(camera_spec, *size)
     elif dataset.camera is None:
-        raise EvpError(f"{spec}: no calibration in the dataset; give --camera FILE or a profile name")
+        raise CalibrationError(spec, "no calibration in the dataset; give --camera FILE or a profile name")
     else:
         camera = dataset.camera
     errors: list[DatasetError] = []

@@ -15,7 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial.transform import Rotation
 
 from evp.calib.profiles import load_profile
-from evp.errors import EvpError
+from evp.errors import UsageError
 from evp.sim import paths
 from evp.sim.motion import SplineMotion, heading_from_velocity, multirotor_attitude
 from evp.sim.sensors import BaroConfig, GpsConfig, ImuConfig, RangeConfig, WheelConfig, WifiConfig
@@ -34,7 +34,7 @@ class SimOptions(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    duration_s: float | None = Field(None, gt=0)
+    duration_s: float | None = Field(None, ge=0.15, description="seconds (at least 0.15: four motion samples; None: the scenario's)")
     seed: int = 0
     fps: float = Field(30.0, gt=0, le=240)
     camera: str | None = Field(None, description="camera preset: " + ", ".join(CAMERA_PRESETS))
@@ -94,7 +94,7 @@ class Scenario:
 def _camera(options: SimOptions, default: str) -> CameraModel:
     name = options.camera or default
     if name not in CAMERA_PRESETS:
-        raise EvpError(f"unknown camera preset {name!r}; choose one of {', '.join(CAMERA_PRESETS)}")
+        raise UsageError(f"unknown camera preset {name!r}; choose one of {', '.join(CAMERA_PRESETS)}")
     camera = load_profile(CAMERA_PRESETS[name])
     if not options.distortion:
         camera = CameraModel(camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy, name=camera.name)
@@ -372,5 +372,5 @@ SCENARIOS: dict[str, Callable[[SimOptions], Scenario]] = {
 
 def build_scenario(name: str, options: SimOptions) -> Scenario:
     if name not in SCENARIOS:
-        raise EvpError(f"unknown scenario {name!r}; choose one of {', '.join(SCENARIOS)}")
+        raise UsageError(f"unknown scenario {name!r}; choose one of {', '.join(SCENARIOS)}")
     return SCENARIOS[name](options)

@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from evp.errors import EvpError
+from evp.errors import DataFormatError, UsageError
 
 TEXTURE_KINDS = ("rich", "low", "floor", "wall")
 MAX_TEXELS = 12000  # per side; coarser texels are used beyond this
@@ -39,7 +39,7 @@ def procedural_texture(kind: str, size_m: tuple[float, float], metres_per_texel:
     a few painted lines); floor: indoor tiles; wall: painted plaster with posters and doors.
     """
     if kind not in TEXTURE_KINDS:
-        raise EvpError(f"unknown texture {kind!r}; choose one of {', '.join(TEXTURE_KINDS)} or an image file")
+        raise UsageError(f"unknown texture {kind!r}; choose one of {', '.join(TEXTURE_KINDS)} or an image file")
     rng = np.random.default_rng(seed)
     shape = (max(8, int(round(size_m[1] / metres_per_texel))), max(8, int(round(size_m[0] / metres_per_texel))))
     if kind == "rich":
@@ -85,7 +85,7 @@ def image_texture(paths: list[Path], tiles_x: int | None = None) -> np.ndarray:
     for path in paths:
         image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
         if image is None:
-            raise EvpError(f"{path}: cannot read texture image")
+            raise DataFormatError(path, "cannot read texture image")
         images.append(image)
     height, width = images[0].shape
     images = [cv2.resize(i, (width, height), interpolation=cv2.INTER_AREA) for i in images]

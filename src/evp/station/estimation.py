@@ -13,8 +13,8 @@ import numpy as np
 
 from evp.geometry.transforms import poses_from_xyz_quat, quat_xyzw_from_matrices
 from evp.pipeline import Sink
-from evp.station.protocol import CameraConfig, ImageMessage, Pose, ProtocolError
-from evp.types import Frame, PoseEstimate
+from evp.station.protocol import ImageMessage, Pose, ProtocolError
+from evp.types import CameraModel, Frame, PoseEstimate
 
 
 def pose_message(seq: int, estimate: PoseEstimate, reset_counter: int, processing_ms: float) -> Pose:
@@ -74,14 +74,14 @@ def wire_frames(connection) -> Iterator[Frame]:
         yield Frame(message.timestamp, image, index=message.seq, source="stream")
 
 
-def worker_main(connection, camera: CameraConfig, settings_json: str) -> None:
+def worker_main(connection, camera: CameraModel, settings_json: str) -> None:
     """The estimator process (``EstimatorProcess``'s target): the pipeline over the wire's frames."""
     from evp.config import Settings
     from evp.pipeline import Pipeline
     from evp.run_setup import make_estimator
 
     settings = Settings.model_validate_json(settings_json)
-    estimator = make_estimator(camera.camera_model(), settings)
+    estimator = make_estimator(camera, settings)
     connection.send(("ready", None))
     Pipeline(estimator, [PoseSender(connection, estimator)]).run(wire_frames(connection))
     try:

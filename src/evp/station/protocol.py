@@ -10,12 +10,14 @@ from __future__ import annotations
 import json
 import math
 import struct
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_serializer, field_validator
 
+from evp.config import OrbSettings
+from evp.errors import LinkError
 from evp.types import CameraModel
 
 PROTOCOL_VERSION = 1
@@ -37,11 +39,12 @@ ERROR_CODES = (
 )
 
 
-class ProtocolError(Exception):
+class ProtocolError(LinkError):
     """A message the station refuses; ``code`` is one of ERROR_CODES."""
 
     def __init__(self, code: str, message: str, seq: int | None = None):
-        assert code in ERROR_CODES, code
+        if code not in ERROR_CODES:  # a bug in the station, not in the peer's message
+            raise ValueError(f"unknown protocol error code {code!r}; known: {', '.join(ERROR_CODES)}")
         super().__init__(f"{code}: {message}")
         self.code = code
         self.message = message
@@ -73,47 +76,27 @@ class Welcome(_Message):
     server: str = ""
 
 
-class CameraConfig(_Message):
-    """Pinhole + OpenCV radial-tangential distortion, at the streamed resolution."""
-
-    width: int = Field(gt=0, le=MAX_IMAGE_SIDE)
-    height: int = Field(gt=0, le=MAX_IMAGE_SIDE)
-    fx: Finite = Field(gt=0)
-    fy: Finite = Field(gt=0)
-    cx: Finite
-    cy: Finite
-    k1: Finite = 0.0
-    k2: Finite = 0.0
-    p1: Finite = 0.0
-    p2: Finite = 0.0
-    k3: Finite = 0.0
-
-    @classmethod
-    def from_camera(cls, camera: CameraModel) -> CameraConfig:
-        return cls(**{name: getattr(camera, name) for name in cls.model_fields})
-
-    def camera_model(self, name: str = "mobile") -> CameraModel:
-        return CameraModel(**self.model_dump(), name=name)
-
-
-class OrbConfig(_Message):
-    n_features: int = Field(ge=50, le=20000)
-    pyramid_levels: int = Field(ge=1, le=16)
-    scale_factor: Finite = Field(gt=1.0, le=2.0)
-    ini_fast_threshold: int = Field(ge=1, le=255)
-    min_fast_threshold: int = Field(ge=1, le=255)
-
-
 class Config(_Message):
     """Camera and estimation settings; from the phone (what it streams) or the station (what to stream)."""
 
     type: Literal["config"] = "config"
-    camera: CameraConfig | None = None
+    camera: CameraModel | None = Field(None, description="at the streamed resolution; its name is not sent")
     fps: Finite | None = Field(None, gt=0, le=1000)
     color_space: Literal["gray", "bgr", "rgb"] | None = None
     encoding: Literal["jpeg", "png", "raw"] | None = None
     jpeg_quality: int | None = Field(None, ge=1, le=100)
-    orb: OrbConfig | None = None
+    orb: OrbSettings | None = None
+
+    @field_validator("camera")
+    @classmethod
+    def _camera_fits_an_image_frame(cls, camera: CameraModel | None) -> CameraModel | None:
+        if camera is not None and max(camera.width, camera.height) > MAX_IMAGE_SIDE:
+            raise ValueError(f"camera of {camera.width}x{camera.height} pixels; image frames are at most {MAX_IMAGE_SIDE} on a side")
+        return camera
+
+    @field_serializer("camera")
+    def _camera_on_the_wire(self, camera: CameraModel | None) -> dict | None:
+        return None if camera is None else {name: value for name, value in asdict(camera).items() if name != "name"}
 
 
 class Enable(_Message):

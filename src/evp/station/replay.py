@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evp.errors import EvpError
+from evp.errors import DataError, UsageError
 from evp.pipeline import Pipeline, Sink
 from evp.station.estimation import pose_message
 from evp.station.protocol import ENCODING_IDS, ImageMessage, Pose, ProtocolError, image_pixels
@@ -108,18 +108,19 @@ def replay(store: SessionStore, session_id: str, all_frames: bool = False, progr
 
     row = store.session(session_id)
     if row is None:
-        raise EvpError(f"no session {session_id!r} in {store.url}")
+        raise UsageError(f"no session {session_id!r} in {store.url}")
     mcap_path = Path(row["mcap_path"] or "")
     if not mcap_path.is_file():
-        raise EvpError(f"session {session_id}: recording {mcap_path} is missing")
+        raise DataError(f"session {session_id}: recording {mcap_path} is missing")
     starts = [(s["t"], Settings.model_validate_json(s["data_json"])) for s in store.rows("settings", session_id) if s["source"] == "server"]
     if not starts:
-        raise EvpError(f"session {session_id}: the estimator never started live; nothing to replay")
+        raise DataError(f"session {session_id}: the estimator never started live; nothing to replay")
     poses: list[Pose] = []
     for _, run in groupby(_frames_by_start(store, session_id, mcap_path, starts, all_frames, progress), key=lambda pair: pair[0][0]):
         (_, camera, settings), first = next(run)
         estimator = make_estimator(camera, settings)
-        Pipeline(estimator, [_PoseRecorder(estimator, poses)]).run(_decoded(chain([first], (item for _, item in run))))
+        rest = (item for _, item in run)  # noqa: B031 - the group is read once, after its first item
+        Pipeline(estimator, [_PoseRecorder(estimator, poses)]).run(_decoded(chain([first], rest)))
     return poses
 
 

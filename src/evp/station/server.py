@@ -142,8 +142,11 @@ async def configure(request: Request) -> JSONResponse:
     station: Station = request.app.state.station
     try:
         body = await request.json()
-        if not isinstance(body, dict):
-            raise ValueError("the body must be a JSON object")
+    except ValueError as exc:
+        return JSONResponse({"error": str(exc)}, status_code=400)
+    if not isinstance(body, dict):
+        return JSONResponse({"error": "the body must be a JSON object"}, status_code=400)
+    try:
         config = station.configure(body.get("orb"), body.get("camera"), body.get("fps"), body.get("color_space"))
     except ValidationError as exc:
         return JSONResponse({"error": validation_message(exc)}, status_code=422)

@@ -12,7 +12,7 @@ import json
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Protocol
 
@@ -22,7 +22,6 @@ from evp.runtime.estimator_process import EstimatorProcess, ProcessEvents
 from evp.station.estimation import worker_main
 from evp.station.protocol import (
     Bye,
-    CameraConfig,
     Config,
     Dropped,
     Enable,
@@ -39,6 +38,7 @@ from evp.station.protocol import (
 )
 from evp.station.recording import SessionRecording
 from evp.station.store import SessionStore
+from evp.types import CameraModel
 
 
 class StationHooks(Protocol):
@@ -74,7 +74,7 @@ class LiveSession:
         self.store = store
         self.station = station
         self.recording = SessionRecording(recording_path)
-        self.camera: CameraConfig | None = None
+        self.camera: CameraModel | None = None  # named after the device
         self.estimating = estimating
         self.worker: EstimatorProcess | None = None
         self.send: Callable[[str], None] | None = None
@@ -179,12 +179,14 @@ class LiveSession:
 
     def _config(self, message: Config, now: float) -> None:
         self.store.insert("settings", session_id=self.id, t=now, source="mobile", data_json=encode(message))
-        if message.camera is None or message.camera == self.camera:
+        if message.camera is None:
             return
-        camera = message.camera.camera_model(self.device or "mobile")
+        camera = replace(message.camera, name=self.device or "mobile")
+        if camera == self.camera:
+            return
         self.recording.camera(camera, now)
-        self.camera = message.camera
-        self.store.update_session(self.id, camera_json=message.camera.model_dump_json())
+        self.camera = camera
+        self.store.update_session(self.id, camera_json=json.dumps(asdict(camera)))
         self.event("info", "config", f"camera {camera.width}x{camera.height} fx={camera.fx:.1f} fy={camera.fy:.1f} cx={camera.cx:.1f} cy={camera.cy:.1f}")
         self.restart_estimator()
 

@@ -14,17 +14,18 @@ from pathlib import Path
 from evp import __version__
 from evp.config import Settings
 from evp.station.estimation import pose_matrix
-from evp.station.protocol import PROTOCOL_VERSION, CameraConfig, Config, Hello, OrbConfig, Pose, ProtocolError
+from evp.station.protocol import PROTOCOL_VERSION, Config, Hello, Pose, ProtocolError
 from evp.station.recording import has_summary, repair
 from evp.station.session import LiveSession
 from evp.station.store import SessionStore
+from evp.types import CameraModel
 
 
-def default_camera(settings: Settings) -> CameraConfig:
+def default_camera(settings: Settings) -> CameraModel:
     """The camera the operator starts from: the settings' calibration, else seed 000's phone."""
     from evp.calib.profiles import configured_camera, load_profile
 
-    return CameraConfig.from_camera(configured_camera(settings.camera) or load_profile("nexus5x_640x380"))
+    return configured_camera(settings.camera) or load_profile("nexus5x_640x380")
 
 
 class Station:
@@ -122,7 +123,7 @@ class Station:
             color_space=s.camera.color_space,
             encoding=s.station.encoding,
             jpeg_quality=s.station.jpeg_quality,
-            orb=OrbConfig(**s.orb.model_dump()),
+            orb=s.orb,
         )
 
     def configure(self, orb: dict | None, camera: dict | None, fps: float | None, color_space: str | None) -> Config:
@@ -135,7 +136,7 @@ class Station:
         if color_space is not None:
             data["camera"]["color_space"] = color_space
         settings = Settings.model_validate(data)  # raises ValidationError before anything changes
-        new_camera = CameraConfig(**camera) if camera else self.camera
+        new_camera = Config.model_validate({"camera": camera}).camera if camera else self.camera  # the wire's checks
         self.settings, self.camera = settings, new_camera
         config = self.config_for_mobile()
         self.store.insert("settings", session_id=None, t=time.time(), source="operator", data_json=config.model_dump_json())

@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from evp.errors import EvpError
+from evp.errors import FrameError
 from evp.types import CameraModel, Frame
 
 
@@ -14,9 +14,9 @@ def grey_image(frame: Frame, camera: CameraModel) -> np.ndarray:
     raises a specific error (the caller skips the frame, nothing is estimated from it)."""
     image = frame.image
     if image is None or image.size == 0:
-        raise EvpError(f"frame {frame.index} at t={frame.timestamp}: empty image")
+        raise FrameError(f"frame {frame.index} at t={frame.timestamp}: empty image")
     if image.shape[0] != camera.height or image.shape[1] != camera.width:
-        raise EvpError(f"frame {frame.index}: image is {image.shape[1]}x{image.shape[0]}, calibration is {camera.width}x{camera.height}")
+        raise FrameError(f"frame {frame.index}: image is {image.shape[1]}x{image.shape[0]}, calibration is {camera.width}x{camera.height}")
     return to_grey(image)
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from evp.errors import EvpError
+from evp.errors import DataError, UsageError
 from evp.vision.matching import hamming_pairs
 
 DESCRIPTOR_BYTES = 32
@@ -113,11 +113,11 @@ def train_vocabulary(
     ``progress(done, total)`` is called as nodes are clustered (``total`` grows while the tree
     does)."""
     if branching < 2 or depth < 1:
-        raise EvpError(f"a vocabulary needs branching >= 2 and depth >= 1, not {branching} and {depth}")
+        raise UsageError(f"a vocabulary needs branching >= 2 and depth >= 1, not {branching} and {depth}")
     sets = [np.ascontiguousarray(d, np.uint8).reshape(-1, DESCRIPTOR_BYTES) for d in descriptor_sets]
     descriptors = np.concatenate(sets) if sets else np.zeros((0, DESCRIPTOR_BYTES), np.uint8)
     if len(descriptors) < branching:
-        raise EvpError(f"{len(descriptors)} descriptors cannot train a vocabulary of {branching} branches")
+        raise DataError(f"{len(descriptors)} descriptors cannot train a vocabulary of {branching} branches")
     rng = np.random.default_rng(seed)
     centres = [np.zeros(DESCRIPTOR_BYTES, np.uint8)]
     children: list[list[int]] = [[]]

@@ -7,8 +7,8 @@ from evp.config import OrbSettings
 from evp.io.vocabulary_files import default_vocabulary_path, load_vocabulary
 from evp.sim.vocabulary_images import TRAINING_SCENES
 from evp.vocabulary_training import build_vocabulary, rendered_descriptors
+from tests.cli.conftest import evp
 from tests.conftest import SAMPLE
-from tests.test_cli import evp
 
 
 def test_the_shipped_vocabulary_is_built_from_evps_renders_by_a_deterministic_build():

@@ -1,0 +1,78 @@
+"""``evp align``: the visual track aligned to GPS, its error against GPS, and the GPS check (seed 002)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+from evp.errors import DatasetError, UsageError
+
+app = typer.Typer()
+
+
+@app.command()
+def align(
+    flight: Path = typer.Argument(..., help="Dataset with images (or --trajectory), GPS and ideally a barometer."),
+    out: Path | None = typer.Option(None, "--out", help="Folder for the geo-referenced track, statistics and plots."),
+    json_out: Path | None = typer.Option(None, "--json", help="Write the horizontal error statistics as JSON."),
+    align_fraction: float | None = typer.Option(None, "--align-fraction", help="Align on this first fraction of the GPS fixes (else the configured window)."),
+    trajectory: Path | None = typer.Option(None, "--trajectory", help="Visual track (TUM, e.g. from evp run) instead of running the estimator."),
+    mode: str | None = typer.Option(None, "--mode", help="2d+baro or 3d+baro."),
+    config: Path | None = typer.Option(None, "--config", help="Settings YAML (align, gps_monitor, vo sections)."),
+) -> None:
+    """Align the visual track to GPS (seed 002), report the error against GPS after the alignment
+    phase, and check GPS for spoofing and jamming."""
+    from pydantic import ValidationError
+    from rich.progress import Progress
+
+    from evp.config import AlignmentSettings, load_settings, write_settings
+    from evp.eval.flight_report import flight_summary, write_flight_report
+    from evp.fusion.flight import process_flight
+    from evp.fusion.gps_input import AlignmentError
+    from evp.io.registry import open_dataset
+    from evp.io.trajectory import read_trajectory
+    from evp.pipeline import run_dataset
+    from evp.run_setup import camera_for, make_estimator, resolve_settings
+
+    settings = load_settings(config)
+    if mode:
+        try:
+            settings = settings.model_copy(update={"align": AlignmentSettings(**{**settings.align.model_dump(), "mode": mode})})
+        except ValidationError:
+            raise UsageError(f"--mode must be 2d+baro or 3d+baro, not {mode!r}") from None
+    dataset = open_dataset(flight)
+    settings = resolve_settings(settings, dataset)  # settings.yaml then names what ran
+    if trajectory is not None:
+        odometry = read_trajectory(trajectory)
+    else:
+        if dataset.num_frames == 0:
+            raise DatasetError(flight, "no images to estimate a visual track from; give --trajectory")
+        estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
+        with Progress(transient=True) as progress:
+            task = progress.add_task(f"visual odometry {dataset.name}", total=dataset.num_frames)
+            odometry = run_dataset(dataset, estimator, lambda n: progress.advance(task, n)).segments()
+    if not dataset.gps:
+        raise AlignmentError(f"{dataset.root}: the dataset has no GPS fixes to align to")
+    result = process_flight(dataset.gps, dataset.baro, odometry, settings.align, settings.gps_monitor, align_fraction)
+    if out is not None:
+        summary = write_flight_report(result, out)
+        write_settings(settings, out)
+    else:
+        summary = flight_summary(result)
+    a = summary["alignment"]
+    typer.echo(
+        f"aligned on {a['pairs_used']} pairs ({a['mode']}, {a['model']}, clock offset {a['clock_offset_s']:+.2f} s, validation RMSE {a['validation_rmse_m']:.2f} m)"
+    )
+    typer.echo(
+        f"horizontal error vs GPS over {summary['n_evaluated']} later fixes: mean {summary['mean']:.2f} m, max {summary['max']:.2f} m, "
+        f"Q1 {summary['q1']:.2f}, Q3 {summary['q3']:.2f}, IQR {summary['iqr']:.2f}, std {summary['std']:.2f}"
+    )
+    for event in summary["events"]:
+        typer.echo(f"event at {event['t']:.1f} s: {event['kind']}: {event['message']}")
+    for warning in summary["warnings"]:
+        typer.echo(f"warning: {warning}", err=True)
+    if json_out:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(summary, indent=2))

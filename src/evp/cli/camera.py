@@ -1,0 +1,63 @@
+"""``evp calibrate`` and ``evp camera``: a camera model from board views, from a file or from a profile."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+app = typer.Typer()
+
+
+@app.command()
+def calibrate(
+    source: Path = typer.Argument(..., help="Folder of images or a video of the board."),
+    out: Path = typer.Option(Path("camera.yaml"), "--out", help="OpenCV FileStorage YAML to write."),
+    pattern: str = typer.Option("chessboard", "--pattern", help="chessboard or charuco."),
+    cols: int = typer.Option(..., "--cols", help="Squares across the board."),
+    rows: int = typer.Option(..., "--rows", help="Squares down the board."),
+    square: float = typer.Option(..., "--square", help="Square side (m)."),
+    marker: float = typer.Option(0.0, "--marker", help="ChArUco marker side (m)."),
+    dictionary: str = typer.Option("DICT_4X4_50", "--dictionary", help="ArUco dictionary of a ChArUco board."),
+    every: int = typer.Option(1, "--every", min=1, help="Use every N-th image or video frame."),
+    k3: bool = typer.Option(False, "--k3", help="Also estimate k3 (wide lenses)."),
+) -> None:
+    """Calibrate a camera from chessboard or ChArUco views; bad views are rejected and reported."""
+    from evp.calib.calibrate import BoardSpec, calibrate_views, images_from_path
+    from evp.calib.camera_files import write_opencv_yaml
+
+    board = BoardSpec(pattern, cols, rows, square, marker, dictionary)
+    result = calibrate_views(images_from_path(source, every), board, fix_k3=not k3)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    # the board and options used are stored beside the result, in the same file
+    used = {"rms_reprojection_error_px": result.rms_px, "views_used": len(result.per_view_rms_px), "views_rejected": len(result.rejected)}
+    used.update({"board_cols": cols, "board_rows": rows, "board_square_m": square, "board_marker_m": marker, "estimate_k3": int(k3), "every_nth_image": every})
+    write_opencv_yaml(out, result.camera, used, {"board_pattern": pattern, "board_dictionary": dictionary})
+    typer.echo(result.report())
+    typer.echo(f"wrote {out}")
+
+
+@app.command()
+def camera(
+    source: str = typer.Argument(..., help="Calibration file (OpenCV, ROS, ORB-SLAM, Kalibr, EuRoC) or profile name."),
+    width: int | None = typer.Option(None, "--width", min=1, help="Rescale to this width (with --height)."),
+    height: int | None = typer.Option(None, "--height", min=1, help="Rescale to this height (with --width)."),
+    out: Path | None = typer.Option(None, "--out", help="Write it as OpenCV FileStorage YAML."),
+) -> None:
+    """Show a camera model from a file or a shipped profile (e.g. nexus5x_640x380); list profiles with 'list'."""
+    from evp.calib.camera_files import write_opencv_yaml
+    from evp.calib.profiles import camera_from, profile_names
+
+    if source == "list":
+        typer.echo("\n".join(profile_names()))
+        return
+    model = camera_from(source)
+    if width and height:
+        model = model.scaled(width, height)
+    typer.echo(
+        f"{model.name}: {model.width}x{model.height} fx {model.fx:.4f} fy {model.fy:.4f} cx {model.cx:.4f} cy {model.cy:.4f} "
+        f"k1 {model.k1:g} k2 {model.k2:g} p1 {model.p1:g} p2 {model.p2:g} k3 {model.k3:g}"
+    )
+    if out:
+        write_opencv_yaml(out, model)
+        typer.echo(f"wrote {out}")

@@ -1,0 +1,128 @@
+"""``evp serve``, ``evp stream`` and ``evp replay``: the base station, a mobile station, and a
+recorded session re-run offline."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from pathlib import Path
+
+import typer
+
+from evp.errors import DataError, UsageError
+
+app = typer.Typer()
+
+
+@app.command()
+def serve(
+    host: str = typer.Option("0.0.0.0", "--host", help="Address to listen on (0.0.0.0: every interface)."),
+    port: int = typer.Option(8443, "--port", help="TCP port for the web UI, the phone page and the WebSockets."),
+    data: Path = typer.Option(Path("evp-data"), "--data", help="Data folder: database, one MCAP recording per session, TLS certificate."),
+    db: str | None = typer.Option(None, "--db", help="SQLAlchemy URL (default: SQLite in the data folder), e.g. postgresql://user@host/evp."),
+    mavlink: str | None = typer.Option(None, "--mavlink", help="Pose to a flight controller, e.g. udpout:127.0.0.1:14540 or /dev/ttyUSB0,57600."),
+    config: Path | None = typer.Option(None, "--config", help="Settings YAML (ORB, camera, SLAM, station, mavlink sections)."),
+    token: str = typer.Option("", "--token", envvar="EVP_TOKEN", help="Shared secret mobile stations must send in hello (default: none)."),
+    no_tls: bool = typer.Option(False, "--no-tls", help="Plain HTTP/WebSocket (behind a TLS proxy); phones then need localhost for the camera."),
+) -> None:
+    """Run the base station: mobile stations stream to it, operators watch it in a browser."""
+    from evp.config import load_settings
+    from evp.station.serve import serve as run_station
+
+    run_station(host, port, data, load_settings(config), db, mavlink, token, not no_tls, typer.echo)
+
+
+def run_stream(source_spec, url, realtime, encoding, jpeg_quality, camera, max_frames, token, resume, cafile, fingerprint, out, quiet, echo) -> dict:
+    """Stream a source to a station; the poses received are echoed (unless quiet) and written to
+    ``out`` (poses.tum, summary.json) when given. Returns the summary."""
+    from evp.mobile.client import StreamClient
+    from evp.mobile.sources import open_source
+    from evp.station.replay import tum_text
+
+    if encoding not in ("auto", "jpeg", "png", "raw"):
+        raise UsageError(f"--encoding {encoding!r}: choose jpeg, png, raw or auto")
+    source = open_source(source_spec, camera, max_frames)
+    if encoding == "auto":
+        encoding = "png" if source.lossless else "jpeg"
+
+    def show(pose) -> None:
+        if not quiet:
+            t = " ".join(f"{v:.4f}" for v in pose.t)
+            echo(f"pose {pose.seq} t={pose.timestamp:.3f} {pose.state} xyz=({t}) quality={pose.quality}")
+
+    client = StreamClient(url, token=token, cafile=cafile, fingerprint=fingerprint, on_pose=show, log=lambda text: echo(text, err=True))
+    report = asyncio.run(client.run(source, realtime, encoding, jpeg_quality, resume))
+    summary = report.summary()
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        poses = [report.poses[k] for k in sorted(report.poses)]
+        (out / "poses.tum").write_text(tum_text(poses))
+        (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    return summary
+
+
+@app.command()
+def stream(
+    source: str = typer.Argument(..., help="Dataset/recording/video path, camera:N (local camera), or an MJPEG URL (http://phone:8080/video)."),
+    url: str = typer.Option(..., "--url", help="The station, e.g. wss://192.168.1.10:8443 (ws://, http(s):// also understood)."),
+    realtime: bool = typer.Option(False, "--realtime", help="Pace a recording at its own rate (else as fast as the station answers)."),
+    encoding: str = typer.Option("auto", "--encoding", help="jpeg, png, raw, or auto (png for image files, jpeg otherwise)."),
+    jpeg_quality: int = typer.Option(90, "--jpeg-quality", min=1, max=100),
+    camera: str | None = typer.Option(None, "--camera", help="Calibration file or profile name when the source has none."),
+    max_frames: int | None = typer.Option(None, "--max-frames", min=1, help="Stop after this many frames."),
+    token: str = typer.Option("", "--token", envvar="EVP_TOKEN", help="The station's token, if it has one."),
+    resume: str | None = typer.Option(None, "--resume", help="Continue this session (after a dropped link)."),
+    cafile: str | None = typer.Option(None, "--cafile", help="The station's cert.pem, to verify it (else its fingerprint is printed)."),
+    fingerprint: str | None = typer.Option(None, "--fingerprint", help="Refuse a station whose certificate has another SHA-256 fingerprint."),
+    out: Path | None = typer.Option(None, "--out", help="Write the received poses here (poses.tum, summary.json)."),
+    quiet: bool = typer.Option(False, "--quiet", help="Print only the summary, not each pose."),
+) -> None:
+    """Stream to a base station as a mobile station would; prints each pose, then a JSON summary."""
+    summary = run_stream(source, url, realtime, encoding, jpeg_quality, camera, max_frames, token, resume, cafile, fingerprint, out, quiet, typer.echo)
+    typer.echo(json.dumps(summary))
+
+
+def _session_reference(session: str, data: Path) -> tuple[str, Path]:
+    """(session id, data folder) from an id or an .mcap path under <data>/sessions/."""
+    path = Path(session)
+    if path.suffix == ".mcap":
+        if not path.is_file():
+            raise DataError(f"{path}: no such recording")
+        return path.stem, path.resolve().parent.parent
+    return session, data
+
+
+def run_replay(session: str, data: Path, db: str | None, out: Path | None, all_frames: bool) -> dict:
+    """Re-run a recorded session; its comparison with the live poses (written to ``out`` when given)."""
+    from rich.progress import Progress
+
+    from evp.station.replay import compare_with_live, write_replay
+    from evp.station.replay import replay as replay_session
+    from evp.station.store import SessionStore
+
+    session_id, data = _session_reference(session, data)
+    database = data / "evp.sqlite"
+    if db is None and not database.is_file():
+        raise UsageError(f"{data}: no station database here (evp.sqlite); give --data or --db")
+    store = SessionStore(db or f"sqlite:///{database.resolve()}")
+    try:
+        row = store.session(session_id)
+        total = row["frames_received"] if row else None
+        with Progress(transient=True) as progress:
+            task = progress.add_task(f"replay {session_id}", total=total or None)
+            poses = replay_session(store, session_id, all_frames, lambda n: progress.advance(task, n))
+        return write_replay(out, store, session_id, poses) if out else compare_with_live(store, session_id, poses)
+    finally:
+        store.close()
+
+
+@app.command()
+def replay(
+    session: str = typer.Argument(..., help="Session id (as listed by the station) or the path of its .mcap file."),
+    data: Path = typer.Option(Path("evp-data"), "--data", help="The station's data folder."),
+    db: str | None = typer.Option(None, "--db", help="SQLAlchemy URL, when the station used --db."),
+    out: Path | None = typer.Option(None, "--out", help="Folder for trajectory.tum, trajectory_live.tum, comparison.json."),
+    all_frames: bool = typer.Option(False, "--all-frames", help="Also estimate the frames the live station dropped as stale."),
+) -> None:
+    """Re-run a recorded session offline and compare with the poses sent live."""
+    typer.echo(json.dumps(run_replay(session, data, db, out, all_frames), indent=2))

@@ -1,0 +1,37 @@
+"""evp info, evp run, evp formats."""
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from evp.io.registry import open_dataset
+from tests.cli.conftest import evp
+from tests.conftest import SAMPLE
+
+
+def test_info_on_bundled_sample():
+    result = evp("info", SAMPLE)
+    assert result.returncode == 0, result.stderr
+    assert "[image-folder]" in result.stdout and "camera frames: 87" in result.stdout
+    data = json.loads(evp("info", SAMPLE, "--json").stdout)
+    assert data["frames"] == 87 and data["calibration"]["width"] == 240
+    assert data["ground_truth"]["path_length_m"] == pytest.approx(0.996, abs=0.01)
+
+
+def test_formats():
+    assert "exif-photos" in evp("formats").stdout
+
+
+def test_run_writes_the_settings_that_ran(tmp_path):
+    """settings.yaml names the estimator auto chose and the time tolerance the evaluation used,
+    which is half the sample's median frame period, as metrics.json says."""
+    result = evp("run", SAMPLE, "--out", tmp_path)
+    assert result.returncode == 0, result.stderr
+    written = yaml.safe_load((tmp_path / "settings.yaml").read_text())
+    assert written["estimator"] == "slam"
+    half_period = float(0.5 * np.median(np.diff(open_dataset(SAMPLE).frame_times)))
+    assert written["eval"]["max_time_diff_s"] == half_period
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["options"]["max_diff_s"] == half_period and metrics["options"]["align"] == written["eval"]["align"] == "sim3"

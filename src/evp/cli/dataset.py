@@ -46,7 +46,8 @@ def run(
 
     from evp.config import load_settings
     from evp.io.registry import open_dataset
-    from evp.pipeline import run_dataset, write_outputs
+    from evp.io.run_outputs import write_outputs
+    from evp.pipeline import run_dataset
     from evp.run_setup import camera_for, make_estimator, resolve_settings
 
     settings = load_settings(config)
@@ -60,9 +61,10 @@ def run(
         # a real-time replay has no spare time to also run OpenCV's ORB on each frame
         reference_orb = None if realtime else settings.orb.n_features
         result = run_dataset(dataset, estimator, lambda n: progress.advance(task, n), reference_orb, speed if realtime else None)
-    if result.refiner is not None:  # a survey adjustment or a global bundle adjustment: seconds after the last frame
-        with Console(stderr=True).status(f"{dataset.name}: refining the trajectory (end of run)"):
-            result.final_trajectory()  # estimators keep what this costs; write_outputs asks again
+    # a survey adjustment or a global bundle adjustment: seconds after the last frame (estimators
+    # keep what it costs; write_outputs asks again)
+    with Console(stderr=True).status(f"{dataset.name}: refining the trajectory (end of run)"):
+        result.final_trajectory()
     metrics = write_outputs(result, dataset, settings, out)
     typer.echo(
         f"{dataset.name}: tracked {metrics['tracked_frames']}/{metrics['frames']} frames "

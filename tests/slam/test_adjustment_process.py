@@ -10,8 +10,8 @@ import pytest
 
 from evp.slam.adjustment_process import AdjustmentProcess, LocalAdjustment
 from evp.slam.loop_closing import GraphCorrection, LoopClosure
+from tests.optim.test_bundle_adjustment import shifted_six_views
 from tests.slam.test_loop_geometry import drifting_circle_graph
-from tests.slam.test_optimisation import shifted_six_views
 
 
 @pytest.fixture

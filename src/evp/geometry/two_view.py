@@ -9,11 +9,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from evp.geometry.transforms import nearest_rotation
+from evp.optim.bundle_adjustment import BundleProblem, bundle_adjust
+from evp.optim.reprojection import CHI2_1DOF, CHI2_2DOF
+from evp.optim.rotation import nearest_rotation
 
-CHI2_1DOF = 3.841  # 95 % for a point-to-line distance
-CHI2_2DOF = 5.991  # 95 % for a point-to-point distance
-HUBER_DELTA = np.sqrt(CHI2_2DOF)  # robust kernel width on whitened reprojection errors (ORB-SLAM's)
 NEW_POINT_PARALLAX_COS = 0.9998  # ~1.1 deg: ORB-SLAM's parallax for a point from two keyframes
 INITIAL_POINT_PARALLAX_COS = 0.99998  # ~0.36 deg: a point of the initial map (ORB-SLAM's CheckRT)
 
@@ -134,8 +133,6 @@ def _best_motion(
 def _refine(T2: np.ndarray, points: np.ndarray, x1: np.ndarray, x2: np.ndarray, focal: float) -> tuple[np.ndarray, np.ndarray]:
     """Two-view bundle adjustment of the second pose and the points (the first view fixed), back
     to a unit baseline: the RANSAC model is fitted on a minimal-ish sample, this uses every inlier."""
-    from evp.slam.bundle_adjustment import BundleProblem, bundle_adjust
-
     n = len(points)
     K = np.diag([focal, focal, 1.0])
     problem = BundleProblem(

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from evp.geometry.sim3 import Sim3
-from evp.slam.bundle_adjustment import BundleProblem, bundle_adjust
+from evp.optim.bundle_adjustment import BundleProblem, bundle_adjust
 
 if TYPE_CHECKING:
     from evp.slam.loop_closing import GraphCorrection

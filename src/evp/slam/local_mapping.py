@@ -20,9 +20,10 @@ import numpy as np
 
 from evp.config import SlamSettings
 from evp.geometry.epipolar_band import epipolar_pairs
-from evp.geometry.two_view import CHI2_1DOF, check_points, triangulate
+from evp.geometry.two_view import check_points, triangulate
+from evp.optim.bundle_adjustment import BundleProblem
+from evp.optim.reprojection import CHI2_1DOF
 from evp.slam.adjustment_process import LocalAdjustment
-from evp.slam.bundle_adjustment import BundleProblem
 from evp.slam.fusion import fuse_points
 from evp.slam.loop_closing import LoopCloser
 from evp.slam.map import KeyFrame, Map

@@ -15,7 +15,8 @@ import numpy as np
 
 from evp.config import VoSettings
 from evp.geometry.transforms import se3, se3_inverse
-from evp.geometry.two_view import CHI2_2DOF, check_points, triangulate
+from evp.geometry.two_view import check_points, triangulate
+from evp.optim.reprojection import CHI2_2DOF
 from evp.types import CameraModel, Frame, PoseEstimate, TrackingState
 from evp.vision.images import grey_image
 

@@ -23,9 +23,8 @@ import scipy.linalg
 import scipy.sparse.linalg
 from scipy.sparse import bsr_matrix, csr_matrix
 
-from evp.geometry.transforms import nearest_rotation
-from evp.geometry.two_view import CHI2_2DOF, HUBER_DELTA
-from evp.slam.projection import reprojection_chi2
+from evp.optim.reprojection import CHI2_2DOF, HUBER_DELTA, reprojection_chi2
+from evp.optim.rotation import nearest_rotation
 
 DENSE_POSE_LIMIT = 300  # free poses above which the reduced system is solved as a sparse matrix
 

@@ -19,6 +19,7 @@ import numpy as np
 from evp.config import Settings
 from evp.io.registry import open_dataset
 from evp.run_setup import camera_for
+from evp.runtime.parallel import HelperThreads
 from evp.vision.orb import OrbExtractor
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -35,10 +36,11 @@ def _row(name: str, frames: int) -> str:
     dataset = open_dataset(SHARED / name)
     settings = Settings()
     camera = camera_for(dataset, settings)
+    helper = HelperThreads()
     extractors = {
         "opencv": cv2.ORB_create(settings.orb.n_features).detectAndCompute,
-        "one thread": OrbExtractor(settings.orb, camera, parallel=False).extract,
-        "two threads": OrbExtractor(settings.orb, camera).extract,
+        "one thread": OrbExtractor(settings.orb, camera).extract,
+        "two threads": OrbExtractor(settings.orb, camera, helper).extract,
     }
     times: dict[str, list[float]] = {key: [] for key in extractors}
     for _, frame in zip(range(frames), dataset.frames(), strict=False):
@@ -46,6 +48,7 @@ def _row(name: str, frames: int) -> str:
         times["opencv"].append(_ms(lambda image: extractors["opencv"](image, None), grey))
         for key in ("one thread", "two threads"):
             times[key].append(_ms(extractors[key], grey))
+    helper.close()
     median = {key: float(np.median(value)) for key, value in times.items()}
     return (
         f"| {name} | {len(times['opencv'])} | {median['opencv']:.1f} | {median['one thread']:.1f} | {median['two threads']:.1f} "

@@ -36,9 +36,9 @@ def make_estimator(camera: CameraModel, settings: Settings, dataset: Dataset | N
 
         return NadirHomographyOdometry(camera)
     if kind == "slam":
-        from evp.slam.system import SlamSystem
+        from evp.runtime.slam import build_slam
 
-        return SlamSystem(camera, settings.orb, settings.slam)
+        return build_slam(camera, settings.orb, settings.slam)
     from evp.vo.klt_vo import KltVisualOdometry
 
     return KltVisualOdometry(camera, settings.vo)

@@ -11,6 +11,7 @@ from evp.config import OrbSettings, Settings, SlamSettings
 from evp.io.registry import open_dataset
 from evp.pipeline import run_dataset, write_outputs
 from evp.run_setup import camera_for, make_estimator
+from evp.runtime.slam import build_slam
 from evp.slam.map import Map
 from evp.slam.system import SlamSystem
 from evp.slam.trials import cover_lens_then_revisit, relocalisation_error
@@ -49,7 +50,7 @@ def test_relocalises_on_real_images(euroc_start):
 def test_mapping_worker_thread_on_real_images(euroc_start, tmp_path):
     """The live configuration: local mapping in its own thread, fed by the keyframe queue."""
     dataset, frames = euroc_start
-    slam = SlamSystem(dataset.camera, OrbSettings(), SlamSettings(mapping="thread"))
+    slam = build_slam(dataset.camera, OrbSettings(), SlamSettings(mapping="thread"))
     states = [slam.feed(frame).tracking_state for frame in frames]
     slam.finish()
     start = states.index(TrackingState.OK)  # 3 degrees of parallax: 1.5 s in

@@ -30,7 +30,8 @@ DENSE_POSE_LIMIT = 300  # free poses above which the reduced system is solved as
 
 
 class StopFlag(Protocol):
-    """What ``bundle_adjust`` polls between iterations: a threading or a multiprocessing Event."""
+    """What ``bundle_adjust`` polls between iterations: anything with ``is_set`` (a plain flag in the
+    solving thread, an event shared with another thread or process)."""
 
     def is_set(self) -> bool: ...
 

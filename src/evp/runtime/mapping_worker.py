@@ -58,6 +58,7 @@ class MappingWorker:
         while True:
             item = self.queue.get()
             if item is None:
+                self._busy.clear()
                 return
             self._busy.set()
             start = time.perf_counter()

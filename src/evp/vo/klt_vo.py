@@ -52,7 +52,6 @@ class KltVisualOdometry:
     def feed(self, frame: Frame) -> PoseEstimate:
         grey = grey_image(frame, self.camera)
         self._frame_count += 1
-        cv2.setRNGSeed(self._frame_count)  # RANSAC draws depend only on the frame: replays are identical
         if self._keyframe is None:
             self._start_keyframe(grey, self._T_world_cam, np.zeros((0, 2)), np.zeros((0, 3)))
             return self._estimate(frame, TrackingState.NOT_INITIALIZED, 0)

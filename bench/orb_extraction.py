@@ -23,6 +23,7 @@ from results import Results
 from evp.config import Settings
 from evp.io.registry import open_dataset
 from evp.run_setup import camera_for
+from evp.runtime.parallel import HelperThreads
 from evp.vision.images import to_grey
 from evp.vision.orb import OrbExtractor
 
@@ -51,10 +52,11 @@ def _record(name: str, frames: int) -> dict:
     dataset = open_dataset(SHARED / name)
     settings = Settings()
     camera = camera_for(dataset, settings)
+    helper = HelperThreads()
     extractors = {
         "opencv": cv2.ORB_create(settings.orb.n_features).detectAndCompute,
-        "one thread": OrbExtractor(settings.orb, camera, parallel=False).extract,
-        "two threads": OrbExtractor(settings.orb, camera).extract,
+        "one thread": OrbExtractor(settings.orb, camera).extract,
+        "two threads": OrbExtractor(settings.orb, camera, helper).extract,
     }
     times: dict[str, list[float]] = {key: [] for key in extractors}
     for _, frame in zip(range(frames), dataset.frames(), strict=False):
@@ -62,6 +64,7 @@ def _record(name: str, frames: int) -> dict:
         times["opencv"].append(_ms(lambda image: extractors["opencv"](image, None), grey))
         for key in ("one thread", "two threads"):
             times[key].append(_ms(extractors[key], grey))
+    helper.close()
     median = {key: float(np.median(value)) for key, value in times.items()}
     return {
         "sequence": name,

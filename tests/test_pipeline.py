@@ -187,3 +187,19 @@ def test_run_result_uses_the_estimators_refined_trajectory():
     result = RunResult(estimator)
     Pipeline(estimator, [result]).run(_frames([0.0, 1.0]))
     assert len(result.trajectory()) == 2 and len(result.final_trajectory()) == 1
+
+
+def test_a_run_that_fails_closes_the_estimator():
+    class Faulty(_Slider):
+        def feed(self, frame):
+            if frame.index == 1:
+                raise RuntimeError("a bug")
+            return super().feed(frame)
+
+        def close(self):
+            self.calls.append("close")
+
+    estimator = Faulty()
+    with pytest.raises(RuntimeError, match="a bug"):
+        Pipeline(estimator).run(_frames([0.0, 0.1, 0.2]))
+    assert estimator.calls == ["feed 0", "settle", "close"]  # closed, not finished

@@ -31,6 +31,10 @@ class Estimator:
     def finish(self) -> None:
         """End of the stream: wait for background work and release what the estimator started."""
 
+    def close(self) -> None:
+        """Release what the estimator started (threads, processes) without finishing its work: a
+        run that failed part way. Safe to call after :meth:`finish`. Default: nothing started."""
+
     def refined_trajectory(self) -> tuple[np.ndarray, np.ndarray] | None:
         """Timestamps (N,) and ``T_world_cam`` (N, 4, 4) of the frames it localised, improved once
         every frame is in (SLAM through its bundle-adjusted keyframes, a photo survey adjusted as a

@@ -85,9 +85,14 @@ class Pipeline:
         self._last_stamp = -np.inf
 
     def run(self, frames: Iterable[Frame]) -> None:
-        """Feed every frame the pacing releases, then finish the estimator."""
-        for frame in self.pacing(frames, self._drop):
-            self.process(frame)
+        """Feed every frame the pacing releases, then finish the estimator; a run that fails part
+        way (a bug, an interrupt) closes it, so no thread or process it started outlives the run."""
+        try:
+            for frame in self.pacing(frames, self._drop):
+                self.process(frame)
+        except BaseException:
+            self.estimator.close()
+            raise
         self.finish()
 
     def process(self, frame: Frame) -> PoseEstimate | None:

@@ -59,9 +59,9 @@ def make_estimator(camera: CameraModel, settings: Settings, dataset: Dataset | N
         return NadirHomographyOdometry(camera)
     if kind == "slam":
         from evp.io.vocabulary_files import load_configured_vocabulary
-        from evp.slam.system import SlamSystem
+        from evp.runtime.slam import build_slam
 
-        return SlamSystem(camera, settings.orb, settings.slam, vocabulary=load_configured_vocabulary(settings.slam.vocabulary))
+        return build_slam(camera, settings.orb, settings.slam, load_configured_vocabulary(settings.slam.vocabulary))
     from evp.vo.klt_vo import KltVisualOdometry
 
     return KltVisualOdometry(camera, settings.vo)

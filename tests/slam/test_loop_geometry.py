@@ -6,9 +6,9 @@ from scipy.spatial.transform import Rotation
 
 from evp.geometry.alignment import umeyama
 from evp.geometry.sim3 import Sim3
+from evp.optim.reprojection import pinhole_pixels
 from evp.slam.essential_graph import optimise_pose_graph
 from evp.slam.loop_closing import _Candidate, _corrections_agree
-from evp.slam.projection import pinhole_pixels
 from evp.slam.sim3_estimation import estimate_sim3
 
 K = np.array([[400.0, 0, 320], [0, 400.0, 190], [0, 0, 1]])

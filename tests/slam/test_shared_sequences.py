@@ -14,6 +14,7 @@ from evp.io.run_outputs import write_outputs
 from evp.io.vocabulary_files import default_vocabulary_path, load_vocabulary
 from evp.pipeline import run_dataset
 from evp.run_setup import camera_for, make_estimator, resolve_settings
+from evp.runtime.slam import build_slam
 from evp.slam.system import SlamSystem
 from evp.types import TrackingState
 from tests.conftest import shared
@@ -53,7 +54,7 @@ def test_relocalises_on_real_images(euroc_start):
 def test_mapping_worker_thread_on_real_images(euroc_start, tmp_path):
     """The live configuration: local mapping in its own thread, fed by the keyframe queue."""
     dataset, frames = euroc_start
-    slam = SlamSystem(dataset.camera, OrbSettings(), SlamSettings(mapping="thread"), vocabulary=VOCABULARY)
+    slam = build_slam(dataset.camera, OrbSettings(), SlamSettings(mapping="thread"), VOCABULARY)
     states = [slam.feed(frame).tracking_state for frame in frames]
     slam.finish()
     start = states.index(TrackingState.OK)  # 3 degrees of parallax: 1.5 s in

@@ -1,6 +1,7 @@
 """The SLAM system on exact rendered scenes: near-zero error without noise, relocalisation after
 a forced loss, and bad input handled without a crash or a silent wrong pose."""
 
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -14,12 +15,14 @@ from evp.geometry.transforms import se3_inverse
 from evp.io.map_files import load_map, save_map, write_map_ply
 from evp.io.registry import open_dataset
 from evp.io.vocabulary_files import default_vocabulary_path, load_vocabulary
+from evp.runtime.slam import build_slam
 from evp.sim.generate import EPOCH_S, generate
 from evp.sim.scenarios import SimOptions, build_scenario
 from evp.sim.world import Renderer
 from evp.slam.local_mapping import LocalMapper
 from evp.slam.loop_closing import GraphCorrection
 from evp.slam.map import Map
+from evp.slam.scheduler import InlineScheduler
 from evp.slam.system import SlamSystem
 from evp.types import Frame, TrackingState, Trajectory
 from tests.slam.relocalisation_trials import cover_lens_then_revisit, relocalisation_error
@@ -195,7 +198,7 @@ def test_a_start_lost_within_a_few_keyframes_is_discarded_and_initialised_again(
     drone's climb: 64 points, lost at once, never relocalised). A larger map is kept (the test
     above)."""
     dataset, frames = circle
-    slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping=mapping), vocabulary=VOCABULARY)
+    slam = build_slam(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping=mapping), VOCABULARY)
     states = []
     for frame in frames:
         states.append(slam.feed(frame).tracking_state)
@@ -300,7 +303,7 @@ def test_closes_the_loop_when_the_circle_comes_round(tmp_path, monkeypatch):
     dataset = open_dataset(tmp_path)
     ate = {}
     for loop_closing in (True, False):
-        slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline", loop_closing=loop_closing), vocabulary=VOCABULARY)
+        slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline", loop_closing=loop_closing), vocabulary=VOCABULARY, scheduler=_Locked())
         for frame in dataset.frames():
             slam.feed(frame)
         slam.finish()
@@ -312,6 +315,13 @@ def test_closes_the_loop_when_the_circle_comes_round(tmp_path, monkeypatch):
             assert lock_free_while_solving == [True]
     assert ate[True] < 0.012
     assert ate[True] < 0.85 * ate[False]
+
+
+class _Locked(InlineScheduler):
+    """Inline mapping with a real map lock, as live mapping has, to check when it is held."""
+
+    def __init__(self) -> None:
+        self.map_lock = threading.RLock()
 
 
 def _try_and_release(lock) -> bool:

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from evp.config import OrbSettings
+from evp.runtime.parallel import HelperThreads
 from evp.types import CameraModel
 from evp.vision import orb as orb_module
 from evp.vision.orb import CELL_PX, EDGE_PX, OrbExtractor, usable_levels
@@ -97,7 +98,8 @@ def test_per_level_extraction_gives_the_features_of_one_opencv_pyramid():
     over the whole pyramid keeps: the same corners per level, positions, angles, descriptors."""
     camera = CameraModel(width=240, height=180, fx=200.0, fy=200.0, cx=120.0, cy=90.0)
     image = cv2.GaussianBlur(np.random.default_rng(0).integers(0, 256, (180, 240), dtype=np.uint8), (0, 0), 1.2)
-    extractor = OrbExtractor(OrbSettings(n_features=500), camera)
+    helper = HelperThreads()
+    extractor = OrbExtractor(OrbSettings(n_features=500), camera, helper)
     levels = len(extractor.scale_factors)
     pyramid = cv2.ORB_create(
         nfeatures=1500,
@@ -122,19 +124,22 @@ def test_per_level_extraction_gives_the_features_of_one_opencv_pyramid():
     np.testing.assert_allclose(ours.angle[order_ours], np.array([k.angle for k in keypoints])[order_theirs], atol=1e-3)
     np.testing.assert_array_equal(ours.descriptors[order_ours], descriptors[order_theirs])
     assert set(ours.octave.tolist()) == set(range(levels))
-    one_thread = OrbExtractor(OrbSettings(n_features=500), camera, parallel=False).extract(image)
+    one_thread = OrbExtractor(OrbSettings(n_features=500), camera).extract(image)
     np.testing.assert_array_equal(one_thread.px, ours.px)
     np.testing.assert_array_equal(one_thread.descriptors, ours.descriptors)
     for _ in range(20):  # whichever thread takes a level, the features come out level by level
         again = extractor.extract(image)
         np.testing.assert_array_equal(again.px, ours.px)
         assert np.all(np.diff(again.octave) >= 0)
+    helper.close()
 
 
 def test_a_failure_in_the_helper_thread_is_raised_not_waited_for(monkeypatch):
     """The caller waits for the helper's pyramid: if building it fails, the error must come back
     to the caller instead of leaving it waiting."""
-    extractor = _extractor()
+    helper = HelperThreads()
+    camera = CameraModel(width=640, height=480, fx=500.0, fy=500.0, cx=320.0, cy=240.0)
+    extractor = OrbExtractor(OrbSettings(n_features=500), camera, helper)
     image = np.full((480, 640), 128, np.uint8)
 
     def broken_resize(*args, **kwargs):
@@ -146,3 +151,4 @@ def test_a_failure_in_the_helper_thread_is_raised_not_waited_for(monkeypatch):
     worker.start()
     worker.join(timeout=10)
     assert not worker.is_alive() and len(outcome) == 1
+    helper.close()

@@ -63,7 +63,8 @@ def _ransac_similarity_3d(src: np.ndarray, dst: np.ndarray, threshold: float, rn
 
 
 def fit_transform(odom: np.ndarray, enu: np.ndarray, mode: str, model: str, threshold_m: float, seed: int = 0) -> tuple[OdomToEnu, np.ndarray]:
-    """RANSAC fit; returns the transform and the inlier mask."""
+    """RANSAC fit; returns the transform and the inlier mask. ``seed`` seeds the 3-D similarity's
+    own RANSAC; OpenCV's estimators seed theirs with a constant (the same fit on every call)."""
     if mode not in MODES or model not in MODELS:
         raise AlignmentError(f"unknown alignment {mode}/{model} (modes {MODES}, models {MODELS})")
     minimum = 4 if mode == "3d+baro" and model == "affine" else 3
@@ -81,7 +82,6 @@ def fit_transform(odom: np.ndarray, enu: np.ndarray, mode: str, model: str, thre
             inliers = inliers.ravel().astype(bool)
     else:
         estimate = cv2.estimateAffine2D if model == "affine" else cv2.estimateAffinePartial2D
-        cv2.setRNGSeed(seed)
         matrix, inliers = estimate(
             np.ascontiguousarray(src[:, :2]),
             np.ascontiguousarray(dst[:, :2]),

@@ -18,14 +18,6 @@ def se3(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
     return T
 
 
-def nearest_rotation(R: np.ndarray) -> np.ndarray:
-    """The rotation closest to a 3x3 matrix (Frobenius norm): removes the scale and shear that
-    numerical decompositions leave, which a chain of poses would otherwise compound."""
-    U, _, Vt = np.linalg.svd(R)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
-
-
 def skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrices ``[v]x`` of a 3-vector (3, 3) or a stack of them (..., 3, 3)."""
     v = np.asarray(v, dtype=float)

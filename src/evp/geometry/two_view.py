@@ -3,17 +3,16 @@ and reprojection checks, and ORB-SLAM's homography-versus-fundamental model sele
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from evp.geometry.transforms import nearest_rotation
+from evp.optim.bundle_adjustment import BundleProblem, bundle_adjust
+from evp.optim.reprojection import CHI2_1DOF, CHI2_2DOF
+from evp.optim.rotation import nearest_rotation
 
-CHI2_1DOF = 3.841  # 95 % for a point-to-line distance
-CHI2_2DOF = 5.991  # 95 % for a point-to-point distance
-HUBER_DELTA = np.sqrt(CHI2_2DOF)  # robust kernel width on whitened reprojection errors (ORB-SLAM's)
 NEW_POINT_PARALLAX_COS = 0.9998  # ~1.1 deg: ORB-SLAM's parallax for a point from two keyframes
 INITIAL_POINT_PARALLAX_COS = 0.99998  # ~0.36 deg: a point of the initial map (ORB-SLAM's CheckRT)
 
@@ -134,8 +133,6 @@ def _best_motion(
 def _refine(T2: np.ndarray, points: np.ndarray, x1: np.ndarray, x2: np.ndarray, focal: float) -> tuple[np.ndarray, np.ndarray]:
     """Two-view bundle adjustment of the second pose and the points (the first view fixed), back
     to a unit baseline: the RANSAC model is fitted on a minimal-ish sample, this uses every inlier."""
-    from evp.slam.bundle_adjustment import BundleProblem, bundle_adjust
-
     n = len(points)
     K = np.diag([focal, focal, 1.0])
     problem = BundleProblem(
@@ -163,10 +160,12 @@ def initial_two_view(
     min_triangulated: int = 50,
     homography_ratio: float = 0.40,
     sigma_px: float = 1.0,
+    parallel: Callable[..., list] | None = None,
 ) -> TwoViewResult | None:
     """Monocular initialisation from matched normalised coordinates (ORB-SLAM's Initializer).
 
-    A homography and a fundamental matrix are estimated in parallel with RANSAC and scored;
+    A homography and a fundamental matrix are estimated with RANSAC (at once when ``parallel``,
+    which runs the callables it is given together and returns their results, is given) and scored;
     ``RH = S_H / (S_H + S_F) > homography_ratio`` selects the homography (planar or low-parallax
     scenes), else the fundamental matrix. The motion is accepted only if unambiguous; ``None``
     means "try again with a later frame" — never a doubtful map.
@@ -182,9 +181,7 @@ def initial_two_view(
     def fit_f():
         return cv2.findFundamentalMat(p1, p2, cv2.FM_RANSAC, threshold * 0.75, 0.999, 200)[0]
 
-    with ThreadPoolExecutor(2) as pool:
-        future_h, future_f = pool.submit(fit_h), pool.submit(fit_f)
-        H, F = future_h.result(), future_f.result()
+    H, F = parallel(fit_h, fit_f) if parallel is not None else (fit_h(), fit_f())
     score_h, inlier_h = _homography_score(H, p1, p2, sigma_px) if H is not None and H.shape == (3, 3) else (0.0, None)
     score_f, inlier_f = _fundamental_score(F[:3], p1, p2, sigma_px) if F is not None and F.shape[0] >= 3 else (0.0, None)
     if score_h + score_f <= 0:

@@ -2,27 +2,29 @@
 cull doubtful recent points, triangulate new points with covisible keyframes, fuse duplicates,
 run local bundle adjustment, cull redundant keyframes, then look for a loop (loop_closing.py).
 
-:class:`LocalMapper` does the work for one keyframe; :class:`MappingWorker` runs it in its own
-thread fed by a keyframe queue. The bundle adjustment solves on a snapshot without the map lock,
-so tracking goes on meanwhile.
+:class:`LocalMapper` does the work for one keyframe in steps (:meth:`LocalMapper.insert`, then
+:meth:`LocalMapper.refine`); :class:`InlineMapping` runs them in the tracking thread, and
+evp.runtime's mapping worker in a thread of its own, fed by a keyframe queue (both are a
+:class:`Mapping`). The bundle adjustment solves on a snapshot without the map lock, so tracking
+goes on meanwhile.
 """
 
 from __future__ import annotations
 
-import queue
-import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
 from evp.config import SlamSettings
 from evp.geometry.epipolar_band import epipolar_pairs
-from evp.geometry.two_view import CHI2_1DOF, check_points, triangulate
-from evp.slam.adjustment_process import LocalAdjustment
-from evp.slam.bundle_adjustment import BundleProblem
+from evp.geometry.two_view import check_points, triangulate
+from evp.optim.bundle_adjustment import BundleProblem
+from evp.optim.reprojection import CHI2_1DOF
+from evp.slam.adjustment import InlineAdjustment
 from evp.slam.loop_closing import LoopCloser
 from evp.slam.map import KeyFrame, Map
 from evp.slam.map_adjustment import apply_solution, whole_map_problem, window_problem
@@ -39,16 +41,21 @@ class NewKeyFrame:
 
 
 class LocalMapper:
-    def __init__(self, slam_map: Map, extractor: OrbExtractor, settings: SlamSettings, adjuster: LocalAdjustment | None = None):
+    """``adjuster`` solves the bundle adjustments (in this thread by default); whoever schedules the
+    mapper may set ``keyframes_waiting`` (newer keyframes queued: skip fusion and adjustment for
+    this one, as ORB-SLAM does) and ``step_done`` (called after each step under the map lock)."""
+
+    def __init__(self, slam_map: Map, extractor: OrbExtractor, settings: SlamSettings, adjuster: InlineAdjustment | None = None):
         self.map = slam_map
         self.extractor = extractor
         self.settings = settings
         self.K = extractor.camera.K
         self.bounds = undistorted_bounds(extractor)
-        self.adjuster = adjuster or LocalAdjustment()  # tracking may interrupt its local windows
+        self.adjuster = adjuster or InlineAdjustment()  # tracking may interrupt its local windows
         self.recent_points: list[int] = []
         self._min_parallax_cos = float(np.cos(np.radians(settings.new_point_min_parallax_deg)))
         self.keyframes_waiting: Callable[[], bool] = lambda: False
+        self.step_done: Callable[[], None] = lambda: None
         self.loop_closer = LoopCloser(slam_map, extractor, settings) if settings.loop_closing else None
 
     def process(self, item: NewKeyFrame) -> None:
@@ -105,11 +112,10 @@ class LocalMapper:
     @contextmanager
     def _locked(self) -> Iterator[None]:
         """The map lock for one step of the work (a step for each neighbour where the work is per
-        neighbour). Held for a whole keyframe, it kept tracking waiting up to 0.2 s; on release the
-        thread yields, since Python's locks are not fair and tracking may be waiting for it."""
+        neighbour): held for a whole keyframe, it kept tracking waiting up to 0.2 s."""
         with self.map.lock:
             yield
-        time.sleep(0)
+        self.step_done()
 
     def _adjust(self, window: tuple[BundleProblem, list[int], list[int]] | None, interruptible: bool) -> None:
         """Bundle adjustment solved on a snapshot without the map lock (tracking goes on), the
@@ -249,66 +255,41 @@ class LocalMapper:
                 self.map.remove_keyframe(nb.id)
 
 
-class MappingWorker:
-    """Runs :class:`LocalMapper` in a thread; ``idle`` tells tracking whether to insert keyframes."""
+class Mapping(Protocol):
+    """How local mapping is scheduled beside tracking (what :class:`~evp.slam.system.SlamSystem`
+    calls): in its thread (:class:`InlineMapping`) or in another (evp.runtime's mapping worker)."""
 
-    def __init__(self, mapper: LocalMapper):
-        self.mapper = mapper
-        self.queue: queue.Queue[NewKeyFrame | None] = queue.Queue()
-        mapper.keyframes_waiting = lambda: not self.queue.empty()
-        self.mapping_ms: list[float] = []
-        self.max_queue = 0
-        self.error: BaseException | None = None
-        self._busy = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="evp-local-mapping", daemon=True)
-        self._thread.start()
+    mapper: LocalMapper
+    mapping_ms: list[float]  # per keyframe mapped
+    max_queue: int  # most keyframes ever waiting
 
     @property
     def idle(self) -> bool:
-        return self.queue.empty() and not self._busy.is_set()
+        """Whether tracking may insert keyframes freely (nothing queued or being mapped)."""
+        ...
 
     @property
     def pending(self) -> int:
-        """Keyframes waiting in the queue (not counting the one being processed)."""
-        return self.queue.qsize()
+        """Keyframes waiting (not counting one being mapped)."""
+        ...
+
+    def submit(self, item: NewKeyFrame) -> None: ...
+
+    def settle(self) -> None:
+        """Map what inline mapping holds back (called before each frame is tracked)."""
+        ...
 
     def interrupt(self) -> None:
         """Tracking needs a keyframe: cut the running bundle adjustment short (ORB-SLAM's InterruptBA)."""
-        self.mapper.adjuster.interrupt()
-
-    def submit(self, item: NewKeyFrame) -> None:
-        self._busy.set()
-        self.queue.put(item)
-        self.max_queue = max(self.max_queue, self.queue.qsize())
-
-    def _run(self) -> None:
-        while True:
-            item = self.queue.get()
-            if item is None:
-                return
-            self._busy.set()
-            start = time.perf_counter()
-            try:
-                self.mapper.process(item)
-            except Exception as exc:  # surfaced to the caller by finish(); the thread must not die silently
-                self.error = exc
-            self.mapping_ms.append((time.perf_counter() - start) * 1000.0)
-            if self.queue.empty():
-                self._busy.clear()
-
-    def settle(self) -> None:
-        """Nothing to wait for: the thread maps keyframes as they come."""
+        ...
 
     def finish(self) -> None:
-        self.queue.put(None)
-        self._thread.join()
-        self.mapper.adjuster.close()
-        if self.error is not None:
-            raise self.error
+        """Map every keyframe submitted, then stop; raises what mapping raised."""
+        ...
 
 
 class InlineMapping:
-    """The same interface, run in the tracking thread (deterministic runs, tests and replays).
+    """Local mapping in the tracking thread (the core's default: deterministic runs, tests and replays).
 
     A keyframe is mapped when the next frame arrives (``settle``), before that frame is tracked:
     the same order of work as mapping at once, but the pose of the keyframe's own frame is

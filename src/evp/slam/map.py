@@ -2,13 +2,14 @@
 files are in ``evp.io.map_files``).
 
 Poses are stored as ``T_cw`` (world to camera), the form projection needs. All mutation goes
-through :class:`Map` methods; callers hold ``Map.lock`` while tracking reads and mapping writes.
+through :class:`Map` methods; callers hold ``Map.lock`` while tracking reads and mapping writes
+(a no-op unless the runtime maps in another thread and lends a real lock).
 """
 
 from __future__ import annotations
 
-import threading
 from collections import Counter
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 from itertools import chain
 
@@ -119,12 +120,15 @@ class MapPoint:
 
 
 class Map:
-    def __init__(self) -> None:
+    """``lock``: what tracking and mapping hold while they read and change the map; nothing to
+    hold by default (one thread), a re-entrant lock when the runtime maps in a thread of its own."""
+
+    def __init__(self, lock: AbstractContextManager | None = None) -> None:
         self.keyframes: dict[int, KeyFrame] = {}
         self.points: dict[int, MapPoint] = {}
         self.store = PointStore()
         self.database = KeyframeDatabase()  # the keyframes' bag-of-words vectors, kept in step
-        self.lock = threading.RLock()
+        self.lock = lock if lock is not None else nullcontext()
         self._next_kf = 0
         self._next_point = 0
         # culled keyframe id -> (parent keyframe id, T_kf_parent): frames that referenced a culled

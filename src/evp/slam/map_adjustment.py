@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from evp.geometry.two_view import CHI2_2DOF
-from evp.slam.bundle_adjustment import BundleProblem, bundle_adjust
+from evp.optim.bundle_adjustment import BundleProblem, bundle_adjust
+from evp.optim.reprojection import CHI2_2DOF
 from evp.slam.map import Map
 
 

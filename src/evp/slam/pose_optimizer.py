@@ -11,9 +11,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from evp.geometry.transforms import nearest_rotation
-from evp.geometry.two_view import CHI2_2DOF, HUBER_DELTA
-from evp.slam.projection import reprojection_chi2
+from evp.optim.reprojection import CHI2_2DOF, HUBER_DELTA, reprojection_chi2
+from evp.optim.rotation import nearest_rotation
 
 
 def apply_increment(T_cw: np.ndarray, xi: np.ndarray) -> np.ndarray:

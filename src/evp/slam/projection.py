@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from evp.optim.reprojection import pinhole_pixels
 from evp.slam.map import Map
 from evp.vision.orb import OrbExtractor
 
@@ -19,21 +20,6 @@ class Projection:
     uv: np.ndarray  # (n, 2) undistorted pixel coordinates
     level: np.ndarray  # (n,) predicted pyramid level
     view_cos: np.ndarray  # (n,) cosine between the viewing ray and the point's mean direction
-
-
-def pinhole_pixels(points_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Undistorted pixel coordinates (N, 2) of camera-frame points; NaN behind the camera."""
-    z = points_cam[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uv = points_cam[:, :2] / z[:, None] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
-    uv[~(z > 0)] = np.nan
-    return uv
-
-
-def reprojection_chi2(points_cam: np.ndarray, observed: np.ndarray, K: np.ndarray, inv_sigma2: np.ndarray) -> np.ndarray:
-    """Squared reprojection errors weighted by the observation's octave; infinite behind the camera."""
-    chi2 = np.sum((pinhole_pixels(points_cam, K) - observed) ** 2, axis=1) * inv_sigma2
-    return np.where(np.isfinite(chi2), chi2, np.inf)
 
 
 def undistorted_bounds(extractor: OrbExtractor) -> tuple[float, float, float, float]:

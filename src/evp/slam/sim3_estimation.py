@@ -15,8 +15,7 @@ from scipy.optimize import least_squares
 from evp.errors import EvaluationError
 from evp.geometry.alignment import umeyama
 from evp.geometry.sim3 import Sim3
-from evp.geometry.two_view import CHI2_2DOF, HUBER_DELTA
-from evp.slam.projection import pinhole_pixels, reprojection_chi2
+from evp.optim.reprojection import CHI2_2DOF, HUBER_DELTA, pinhole_pixels, reprojection_chi2
 
 MIN_INLIERS = 20
 

@@ -1,5 +1,5 @@
 """The monocular SLAM system: ``feed(frame) -> PoseEstimate`` (ORB-SLAM's Tracking thread, with
-local mapping in a worker and relocalisation when lost).
+local mapping scheduled beside it and relocalisation when lost).
 
 Per frame: ORB extraction; before initialisation, two-view initialisation against a reference
 frame; then the constant-velocity motion model with guided search (fallback: matching against the
@@ -25,13 +25,13 @@ from evp.config import OrbSettings, SlamSettings
 from evp.estimator import Estimator
 from evp.geometry.transforms import scale_motion, se3_inverse
 from evp.geometry.two_view import initial_two_view
-from evp.slam.adjustment_process import AdjustmentProcess
-from evp.slam.local_mapping import InlineMapping, LocalMapper, MappingWorker, NewKeyFrame
+from evp.slam.local_mapping import LocalMapper, NewKeyFrame
 from evp.slam.loop_closing import LoopClosure
 from evp.slam.map import KeyFrame, Map
 from evp.slam.map_adjustment import adjust_whole_map
 from evp.slam.pose_optimizer import optimise_pose
 from evp.slam.projection import project_points, undistorted_bounds
+from evp.slam.scheduler import InlineScheduler, Scheduler
 from evp.types import CameraModel, Frame, PoseEstimate, TrackingState
 from evp.vision.images import grey_image
 from evp.vision.matching import TH_HIGH, TH_LOW, match_descriptors, match_in_window, rotation_consistent
@@ -68,18 +68,21 @@ class _FrameRecord:
 
 
 class SlamSystem(Estimator):
-    def __init__(self, camera: CameraModel, orb: OrbSettings | None = None, settings: SlamSettings | None = None, *, vocabulary: Vocabulary):
+    """``vocabulary`` is the place-recognition vocabulary (the adapter loads the one
+    ``settings.vocabulary`` names); ``scheduler`` runs the work besides tracking: by default all of it in the caller's thread,
+    in order (deterministic); evp.runtime.slam.build_slam lends the threads ``slam.mapping``
+    asks for (this class does not read that setting)."""
+
+    def __init__(self, camera: CameraModel, orb: OrbSettings | None = None, settings: SlamSettings | None = None, *, vocabulary: Vocabulary, scheduler: Scheduler | None = None):
         self.camera = camera
         self.settings = settings or SlamSettings()
-        self.extractor = OrbExtractor(orb or OrbSettings(), camera)
+        self.scheduler = scheduler or InlineScheduler()
+        self.extractor = OrbExtractor(orb or OrbSettings(), camera, self.scheduler.parallel)
         self.K = camera.K
         self.bounds = undistorted_bounds(self.extractor)
-        self.map = Map()
-        self.vocabulary = vocabulary  # the adapter loads the one ``settings.vocabulary`` names
-        if self.settings.mapping == "thread":
-            self.mapping: MappingWorker | InlineMapping = MappingWorker(LocalMapper(self.map, self.extractor, self.settings, AdjustmentProcess()))
-        else:
-            self.mapping = InlineMapping(LocalMapper(self.map, self.extractor, self.settings))
+        self.map = Map(self.scheduler.map_lock)
+        self.vocabulary = vocabulary
+        self.mapping = self.scheduler.start_mapping(LocalMapper(self.map, self.extractor, self.settings))
         self.state = TrackingState.NOT_INITIALIZED
         self.extraction_ms: list[float] = []
         self.tracking_ms: list[float] = []  # per frame, without mapping
@@ -103,7 +106,6 @@ class SlamSystem(Estimator):
         grey = grey_image(frame, self.camera)
         self.settle()
         self._frame_count += 1
-        cv2.setRNGSeed(self._frame_count)
         start = time.perf_counter()
         features = self.extractor.extract(grey)
         self.extraction_ms.append((time.perf_counter() - start) * 1000.0)
@@ -128,8 +130,16 @@ class SlamSystem(Estimator):
         self.mapping.settle()
 
     def finish(self) -> None:
-        """Wait for local mapping to finish its queue (end of a run)."""
-        self.mapping.finish()
+        """Wait for local mapping to finish its queue, then release what the scheduler started
+        (end of a run; the trajectories stay readable)."""
+        try:
+            self.mapping.finish()
+        finally:
+            self.scheduler.close()
+
+    def close(self) -> None:
+        """Release the scheduler's threads and process without mapping what is queued."""
+        self.scheduler.close()
 
     @property
     def mapping_ms(self) -> list[float]:
@@ -240,7 +250,13 @@ class SlamSystem(Estimator):
             self._init_reference = self._reference_here(features)
             return None
         result = initial_two_view(
-            ref.normalised[rows], features.normalised[cols], self.camera.fx, s.init_min_parallax_deg, s.init_min_triangulated, s.homography_ratio
+            ref.normalised[rows],
+            features.normalised[cols],
+            self.camera.fx,
+            s.init_min_parallax_deg,
+            s.init_min_triangulated,
+            s.homography_ratio,
+            parallel=self.scheduler.parallel,
         )
         if result is None or result.good.sum() < s.init_min_triangulated:
             return None

@@ -7,15 +7,15 @@ the *initial* threshold and falling back to weaker ones only in cells that have 
 per-cell ini/min threshold rule of ORB-SLAM, done in one detection pass.
 
 Each pyramid level is detected and described by its own single-level OpenCV ORB, so two threads
-share the levels (OpenCV releases the GIL): extraction uses both cores of a small machine, with
-exactly the features one OpenCV pyramid would give.
+can share the levels (OpenCV releases the GIL): given a way to run two callables at once (evp.runtime
+lends a helper thread), extraction uses both cores of a small machine, with exactly the features
+one OpenCV pyramid would give.
 """
 
 from __future__ import annotations
 
-import threading
 from collections import deque
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -70,10 +70,10 @@ def _per_level(total: int, scale_factor: float, levels: int) -> np.ndarray:
 
 
 class OrbExtractor:
-    """``parallel``: a second thread shares the levels (the default); off, every level in the
-    caller's thread (same features)."""
+    """``parallel`` runs the callables it is given at once and returns their results: two share the
+    levels. None: every level in the caller's thread (same features)."""
 
-    def __init__(self, settings: OrbSettings, camera: CameraModel, parallel: bool = True):
+    def __init__(self, settings: OrbSettings, camera: CameraModel, parallel: Callable[..., list] | None = None):
         self.settings = settings
         self.camera = camera
         levels = usable_levels(settings, camera)
@@ -98,26 +98,31 @@ class OrbExtractor:
             )
             for n in retained
         ]
-        self._helper = ThreadPoolExecutor(1, thread_name_prefix="orb") if parallel and levels > 1 else None
+        self._parallel = parallel if levels > 1 else None
 
     def extract(self, grey: np.ndarray) -> Features:
-        """Level 0 in the caller's thread at once; the helper builds the rest of the pyramid, then
-        both take the next level left, largest first, until none is (the per-level cost is not
-        proportional to the area, so a fixed split left one thread waiting 4 ms on MH01)."""
+        """In parallel, one task extracts level 0 at once while the other builds the rest of the
+        pyramid, queueing each level as it is built; then both take the next level queued, largest
+        first, until none is (the per-level cost is not proportional to the area, so a fixed split
+        left one thread waiting 4 ms on MH01). Which task takes which level changes nothing found."""
         pyramid: list[np.ndarray | None] = [grey] + [None] * (len(self.scale_factors) - 1)
         found: dict[int, tuple[np.ndarray, ...] | None] = {}
-        if self._helper is None:
-            self._build_pyramid(pyramid)
-            self._extract_queued(deque(range(len(pyramid))), pyramid, found)
-        else:
-            waiting, built = deque(range(1, len(pyramid))), threading.Event()
-            job = self._helper.submit(self._build_then_extract, waiting, pyramid, built, found)
-            found[0] = self._extract_level(0, grey)
-            built.wait()
-            if pyramid[-1] is None:
-                job.result()  # building failed: raise the helper's error here
+        if self._parallel is None:
+            waiting = deque([0])
+            self._build_pyramid(pyramid, waiting)
             self._extract_queued(waiting, pyramid, found)
-            job.result()
+        else:
+            waiting = deque()
+
+            def build_then_extract() -> None:
+                self._build_pyramid(pyramid, waiting)
+                self._extract_queued(waiting, pyramid, found)
+
+            def first_level_then_extract() -> None:
+                found[0] = self._extract_level(0, grey)
+                self._extract_queued(waiting, pyramid, found)
+
+            self._parallel(build_then_extract, first_level_then_extract)
         parts = [found[level] for level in sorted(found) if found[level] is not None]
         if not parts:
             return self._empty()
@@ -126,19 +131,14 @@ class OrbExtractor:
         un_px = normalised * [self.camera.fx, self.camera.fy] + [self.camera.cx, self.camera.cy]
         return Features(px, un_px, normalised, *(np.concatenate([part[k] for part in parts]) for k in (1, 2)), np.vstack([part[3] for part in parts]))
 
-    def _build_pyramid(self, pyramid: list[np.ndarray | None]) -> None:
-        """Each level resized from the one before, as OpenCV builds its pyramid."""
+    def _build_pyramid(self, pyramid: list[np.ndarray | None], built: deque) -> None:
+        """Each level resized from the one before, as OpenCV builds its pyramid; its index is
+        queued on ``built`` once it is there (a deque's append is atomic)."""
         height, width = pyramid[0].shape
         for level in range(1, len(pyramid)):
             size = (round(width / self.scale_factors[level]), round(height / self.scale_factors[level]))
             pyramid[level] = cv2.resize(pyramid[level - 1], size, interpolation=cv2.INTER_LINEAR_EXACT)
-
-    def _build_then_extract(self, waiting: deque, pyramid: list, built: threading.Event, found: dict) -> None:
-        try:
-            self._build_pyramid(pyramid)
-        finally:
-            built.set()  # the caller waits for it, even when building failed
-        self._extract_queued(waiting, pyramid, found)
+            built.append(level)
 
     def _extract_queued(self, waiting: deque, pyramid: list, found: dict) -> None:
         """Take levels from ``waiting`` (a deque's popleft is atomic) until it is empty."""

@@ -16,7 +16,8 @@ import numpy as np
 from evp.config import VoSettings
 from evp.estimator import Estimator
 from evp.geometry.transforms import se3, se3_inverse
-from evp.geometry.two_view import CHI2_2DOF, check_points, triangulate
+from evp.geometry.two_view import check_points, triangulate
+from evp.optim.reprojection import CHI2_2DOF
 from evp.types import CameraModel, Frame, PoseEstimate, TrackingState
 from evp.vision.images import grey_image
 
@@ -52,7 +53,6 @@ class KltVisualOdometry(Estimator):
     def feed(self, frame: Frame) -> PoseEstimate:
         grey = grey_image(frame, self.camera)
         self._frame_count += 1
-        cv2.setRNGSeed(self._frame_count)  # RANSAC draws depend only on the frame: replays are identical
         if self._keyframe is None:
             self._start_keyframe(grey, self._T_world_cam, np.zeros((0, 2)), np.zeros((0, 3)))
             return self._estimate(frame, TrackingState.NOT_INITIALIZED, 0)

@@ -75,7 +75,9 @@ class NadirHomographyOdometry(Estimator):
         return near + recent
 
     def feed(self, frame: Frame) -> PoseEstimate:
-        cv2.setRNGSeed(len(self._placed))  # FLANN's randomised trees and RANSAC: identical replays
+        # FLANN shuffles its KD-trees with OpenCV's per-thread RNG and takes no seed of its own (RANSAC
+        # draws nothing from it): seeded per image, so a replay matches the same pairs
+        cv2.setRNGSeed(len(self._placed))
         pixels, descriptors = self._features(frame)
         if descriptors is None or len(pixels) < self.min_inliers:
             self._lost = bool(self._placed)

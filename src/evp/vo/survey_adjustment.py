@@ -25,8 +25,8 @@ from scipy.optimize import minimize
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from evp.geometry.two_view import CHI2_2DOF
-from evp.slam.bundle_adjustment import BundleProblem, bundle_adjust
+from evp.optim.bundle_adjustment import BundleProblem, bundle_adjust
+from evp.optim.reprojection import CHI2_2DOF
 from evp.types import CameraModel
 
 LENS_STEPS = (-0.1, -0.05, 0.03)  # the search's first steps from the given lens: log focal length, k1, k2

@@ -23,15 +23,15 @@ import scipy.linalg
 import scipy.sparse.linalg
 from scipy.sparse import bsr_matrix, csr_matrix
 
-from evp.geometry.transforms import nearest_rotation
-from evp.geometry.two_view import CHI2_2DOF, HUBER_DELTA
-from evp.slam.projection import reprojection_chi2
+from evp.optim.reprojection import CHI2_2DOF, HUBER_DELTA, reprojection_chi2
+from evp.optim.rotation import nearest_rotation
 
 DENSE_POSE_LIMIT = 300  # free poses above which the reduced system is solved as a sparse matrix
 
 
 class StopFlag(Protocol):
-    """What ``bundle_adjust`` polls between iterations: a threading or a multiprocessing Event."""
+    """What ``bundle_adjust`` polls between iterations: anything with ``is_set`` (a plain flag in the
+    solving thread, an event shared with another thread or process)."""
 
     def is_set(self) -> bool: ...
 

@@ -8,10 +8,11 @@ import signal
 import numpy as np
 import pytest
 
-from evp.slam.adjustment_process import AdjustmentProcess, LocalAdjustment
+from evp.runtime.adjustment_process import AdjustmentProcess
+from evp.slam.adjustment import InlineAdjustment
 from evp.slam.loop_closing import GraphCorrection, LoopClosure
+from tests.optim.test_bundle_adjustment import shifted_six_views
 from tests.slam.test_loop_geometry import drifting_circle_graph
-from tests.slam.test_optimisation import shifted_six_views
 
 
 @pytest.fixture
@@ -29,7 +30,7 @@ def helper():
 def test_helper_process_solves_as_the_thread_does(problem, helper):
     bundle, truth = problem
     remote = helper.solve(bundle, 20)
-    local = LocalAdjustment().solve(bundle, 20)
+    local = InlineAdjustment().solve(bundle, 20)
     for a, b in zip(remote, local, strict=True):
         assert np.array_equal(a, b)
     assert np.abs(remote[0] - truth).max() < 1e-6
@@ -40,7 +41,7 @@ def test_helper_process_solves_as_the_thread_does(problem, helper):
 def test_a_loops_pose_graph_is_solved_in_the_helper_as_in_the_thread(helper):
     _, initial, fixed, edge_i, edge_j, measured = drifting_circle_graph()
     graph = GraphCorrection(LoopClosure(19, 0, 0.0, 100, 1.0), list(range(len(initial))), initial, fixed, edge_i, edge_j, measured)
-    remote, local = helper.solve_graph(graph), LocalAdjustment().solve_graph(graph)
+    remote, local = helper.solve_graph(graph), InlineAdjustment().solve_graph(graph)
     for name in ("s", "R", "t"):
         assert np.array_equal(getattr(remote, name), getattr(local, name))
     assert not np.allclose(remote.t, initial.t)  # the graph moved the poses
@@ -50,7 +51,7 @@ def test_mapping_goes_on_in_the_thread_when_the_helper_dies(problem, helper, cap
     bundle, truth = problem
     for pid in list(helper._pool._processes):
         os.kill(pid, signal.SIGKILL)
-    with caplog.at_level(logging.WARNING, logger="evp.slam.adjustment_process"):
+    with caplog.at_level(logging.WARNING, logger="evp.runtime.adjustment_process"):
         poses, _, _ = helper.solve(bundle, 20)
     assert np.abs(poses - truth).max() < 1e-6
     assert "helper process died" in caplog.text

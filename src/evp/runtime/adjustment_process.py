@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
-import threading
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -19,53 +18,32 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from evp.geometry.sim3 import Sim3
-from evp.slam.bundle_adjustment import BundleProblem, bundle_adjust
+from evp.optim.bundle_adjustment import BundleProblem, StopFlag, bundle_adjust
+from evp.slam.adjustment import InlineAdjustment
 
 if TYPE_CHECKING:
+    from evp.geometry.sim3 import Sim3
     from evp.slam.loop_closing import GraphCorrection
 
 log = logging.getLogger(__name__)
 
-_stop = None  # the helper's view of the stop event (set by _start_helper)
+# In the helper process only: the stop event it was started with. A process-shared event cannot
+# travel with each task, only be inherited at the start (the pool's initializer sets this).
+_helper_stop: StopFlag | None = None
 
 
-def _start_helper(stop) -> None:
-    global _stop
-    _stop = stop
+def _start_helper(stop: StopFlag) -> None:
+    global _helper_stop
+    _helper_stop = stop
 
 
 def _solve_in_helper(problem: BundleProblem, evaluations: int, interruptible: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    return bundle_adjust(problem, evaluations, stop=_stop if interruptible else None)
+    return bundle_adjust(problem, evaluations, stop=_helper_stop if interruptible else None)
 
 
-class LocalAdjustment:
-    """Bundle adjustments solved in the calling thread (inline mapping, tests, replays)."""
-
-    def __init__(self, stop=None) -> None:
-        self.stop = stop if stop is not None else threading.Event()
-
-    def solve(self, problem: BundleProblem, evaluations: int, interruptible: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Poses, points and chi-square errors; ``interruptible`` solves (local windows) end early
-        on :meth:`interrupt`, a global adjustment after a loop does not."""
-        if interruptible:
-            self.stop.clear()
-        return bundle_adjust(problem, evaluations, stop=self.stop if interruptible else None)
-
-    def solve_graph(self, graph: GraphCorrection) -> Sim3:
-        """A loop's pose graph, optimised (the caller holds no lock: tracking goes on)."""
-        return graph.solve()
-
-    def interrupt(self) -> None:
-        self.stop.set()
-
-    def close(self) -> None:
-        """Nothing to release."""
-
-
-class AdjustmentProcess(LocalAdjustment):
-    """The same, solved in one helper process; ``solve`` blocks the calling (mapping) thread, not
-    the interpreter.
+class AdjustmentProcess(InlineAdjustment):
+    """The core's adjustments solved in one helper process; ``solve`` blocks the calling (mapping)
+    thread, not the interpreter.
 
     forkserver, not fork: the parent already runs threads (tracking, mapping, OpenBLAS), which a
     forked child would inherit in whatever state they were. Should the helper die (killed for
@@ -87,7 +65,7 @@ class AdjustmentProcess(LocalAdjustment):
     def solve(self, problem: BundleProblem, evaluations: int, interruptible: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if interruptible:
             self.stop.clear()
-        return self._in_helper(_solve_in_helper, lambda: LocalAdjustment.solve(self, problem, evaluations, interruptible), problem, evaluations, interruptible)
+        return self._in_helper(_solve_in_helper, lambda: InlineAdjustment.solve(self, problem, evaluations, interruptible), problem, evaluations, interruptible)
 
     def solve_graph(self, graph: GraphCorrection) -> Sim3:
         return self._in_helper(graph.solve, graph.solve)
@@ -103,6 +81,7 @@ class AdjustmentProcess(LocalAdjustment):
         return here()
 
     def close(self) -> None:
+        """Stop the helper process (idempotent)."""
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None

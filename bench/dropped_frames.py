@@ -22,6 +22,7 @@ from results import Results
 
 from evp.config import Settings
 from evp.io.registry import open_dataset
+from evp.pipeline import run_frames
 from evp.run_setup import make_estimator
 from evp.types import Frame, TrackingState
 
@@ -30,7 +31,7 @@ SAMPLE = Path(__file__).resolve().parents[1] / "data" / "sample" / "davis_slider
 
 def _ok_share(dataset, frames: list[Frame]) -> float:
     estimator = make_estimator(dataset.camera, Settings(estimator="slam"))
-    states = [estimator.feed(frame).tracking_state for frame in frames]
+    states = [estimate.tracking_state for estimate in run_frames(estimator, frames).estimates]
     return sum(s == TrackingState.OK for s in states) / max(1, len(states))
 
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 import argparse
 import platform
 import tempfile
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +32,9 @@ from evp.config import EvalSettings, Settings
 from evp.eval.evaluate import evaluate
 from evp.io.registry import open_dataset
 from evp.io.vocabulary_files import load_configured_vocabulary
+from evp.pipeline import run_frames
 from evp.slam.local_mapping import LocalMapper, NewKeyFrame
+from evp.slam.scheduler import InlineScheduler
 from evp.slam.system import SlamSystem
 from evp.types import PoseEstimate, TrackingState, Trajectory
 
@@ -45,10 +47,14 @@ class LaggedMapping:
     """Mapping with :class:`InlineMapping`'s interface, busy for a random number of frames per
     keyframe, in the tracking thread (reproducible). As the thread does live, a keyframe's new
     points reach tracking at the next frame (the thread triangulates them in 20-60 ms) and its
-    local bundle adjustment when the drawn frames have passed."""
+    local bundle adjustment when the drawn frames have passed. The lag is counted in frames fed
+    (``frames_fed``), since the engine settles its mapping both before a frame and, driven by the
+    pipeline, after one."""
 
-    def __init__(self, mapper: LocalMapper, seed: int, frames: tuple[int, int]):
+    def __init__(self, mapper: LocalMapper, seed: int, frames: tuple[int, int], frames_fed: Callable[[], int]):
         self.mapper = mapper
+        self._frames_fed = frames_fed
+        self._counted = 0  # frames fed when the lag last advanced
         self.mapping_ms: list[float] = []  # not timed: the drawn lag stands for the time
         self.max_queue = 0
         self._rng = np.random.default_rng(seed)
@@ -74,8 +80,9 @@ class LaggedMapping:
         self._queue.append(item)
 
     def settle(self) -> None:
-        if not self._queue:
+        if not self._queue or self._frames_fed() == self._counted:
             return
+        self._counted = self._frames_fed()
         if self._head_kept is None:
             self._head_kept = self.mapper.insert(self._queue[0])
         self._frames_left -= 1
@@ -92,7 +99,19 @@ class LaggedMapping:
     def finish(self) -> None:
         while self._queue:
             self._frames_left = 1  # due now
+            self._counted = -1
             self.settle()
+
+
+class LaggedScheduler(InlineScheduler):
+    """The inline schedule with :class:`LaggedMapping` (``frames_fed`` set once the engine exists)."""
+
+    def __init__(self, seed: int, frames: tuple[int, int]):
+        self.seed, self.frames = seed, frames
+        self.frames_fed: Callable[[], int] = lambda: 0
+
+    def start_mapping(self, mapper: LocalMapper) -> LaggedMapping:
+        return LaggedMapping(mapper, self.seed, self.frames, lambda: self.frames_fed())
 
 
 def _busy_frames_range(frames) -> tuple[int, int]:
@@ -102,11 +121,10 @@ def _busy_frames_range(frames) -> tuple[int, int]:
 
 
 def _trial(dataset, frames, seed: int, settings: Settings) -> tuple[int, int, float, float]:
-    slam = SlamSystem(
-        dataset.camera, settings.orb, settings.slam.model_copy(update={"mapping": "inline"}), vocabulary=load_configured_vocabulary(settings.slam.vocabulary)
-    )
-    slam.mapping = LaggedMapping(slam.mapping.mapper, seed, _busy_frames_range(frames))
-    tracked, ate, drift = drift_of_final_map_poses(dataset, [slam.feed(frame) for frame in frames])
+    scheduler = LaggedScheduler(seed, _busy_frames_range(frames))
+    slam = SlamSystem(dataset.camera, settings.orb, settings.slam, vocabulary=load_configured_vocabulary(settings.slam.vocabulary), scheduler=scheduler)
+    scheduler.frames_fed = lambda: slam.frames_fed
+    tracked, ate, drift = drift_of_final_map_poses(dataset, run_frames(slam, frames).estimates)
     return len(slam.map.keyframes), tracked, ate, drift
 
 

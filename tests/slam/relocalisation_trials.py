@@ -4,6 +4,7 @@ not part of it)."""
 
 import numpy as np
 
+from evp.pipeline import Pipeline
 from evp.slam.system import SlamSystem
 from evp.types import Frame, PoseEstimate, TrackingState
 
@@ -14,15 +15,16 @@ def cover_lens_then_revisit(
     """Feed ``frames[:mapped]``, three blank frames (which must lose tracking), then
     ``frames[revisit]`` again with later timestamps (or ``views``: other images of those places,
     one per revisited frame). Returns the first pass's estimates and those of the revisit."""
-    first = [slam.feed(frame) for frame in frames[:mapped]]
+    pipeline = Pipeline(slam)
+    first = [pipeline.process(frame) for frame in frames[:mapped]]
     blank = np.full_like(frames[0].image, 128)
     t = frames[mapped - 1].timestamp
     for k in range(3):
-        estimate = slam.feed(Frame(t + 0.01 * (k + 1), blank, mapped + k))
+        estimate = pipeline.process(Frame(t + 0.01 * (k + 1), blank, mapped + k))
     if estimate.tracking_state != TrackingState.LOST:
         raise RuntimeError("a covered lens did not lose tracking")
     images = views if views is not None else [frame.image for frame in frames[revisit]]
-    again = [slam.feed(Frame(t + 1.0 + 0.1 * k, image, mapped + 3 + k)) for k, image in enumerate(images)]
+    again = [pipeline.process(Frame(t + 1.0 + 0.1 * k, image, mapped + 3 + k)) for k, image in enumerate(images)]
     return first, again
 
 

@@ -303,7 +303,9 @@ def test_closes_the_loop_when_the_circle_comes_round(tmp_path, monkeypatch):
     dataset = open_dataset(tmp_path)
     ate = {}
     for loop_closing in (True, False):
-        slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline", loop_closing=loop_closing), vocabulary=VOCABULARY, scheduler=_Locked())
+        slam = SlamSystem(
+            dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline", loop_closing=loop_closing), vocabulary=VOCABULARY, scheduler=_Locked()
+        )
         for frame in dataset.frames():
             slam.feed(frame)
         slam.finish()

@@ -73,7 +73,15 @@ class SlamSystem(Estimator):
     in order (deterministic); evp.runtime.slam.build_slam lends the threads ``slam.mapping``
     asks for (this class does not read that setting)."""
 
-    def __init__(self, camera: CameraModel, orb: OrbSettings | None = None, settings: SlamSettings | None = None, *, vocabulary: Vocabulary, scheduler: Scheduler | None = None):
+    def __init__(
+        self,
+        camera: CameraModel,
+        orb: OrbSettings | None = None,
+        settings: SlamSettings | None = None,
+        *,
+        vocabulary: Vocabulary,
+        scheduler: Scheduler | None = None,
+    ):
         self.camera = camera
         self.settings = settings or SlamSettings()
         self.scheduler = scheduler or InlineScheduler()
@@ -140,6 +148,11 @@ class SlamSystem(Estimator):
     def close(self) -> None:
         """Release the scheduler's threads and process without mapping what is queued."""
         self.scheduler.close()
+
+    @property
+    def frames_fed(self) -> int:
+        """Frames fed so far (each counts once, tracked or not)."""
+        return self._frame_count
 
     @property
     def mapping_ms(self) -> list[float]:

@@ -80,7 +80,7 @@ def test_run_without_calibration_is_a_clear_error(tmp_path):
     root = tmp_path / "vid"
     video = builders.make_video(root)
     proc = subprocess.run([sys.executable, "-m", "evp.cli", "run", str(video), "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 3 and "no calibration" in proc.stderr  # a data error (errors.ExitCode.DATA)
+    assert proc.returncode == 3 and "no calibration" in proc.stderr  # bad input data
     shutil.rmtree(root)
 
 

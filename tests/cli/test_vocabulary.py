@@ -4,6 +4,7 @@ own from recordings, and a bad vocabulary is a clear error before any frame is p
 import numpy as np
 
 from evp.config import OrbSettings
+from evp.errors import ExitCode
 from evp.io.vocabulary_files import default_vocabulary_path, load_vocabulary
 from evp.sim.vocabulary_images import TRAINING_SCENES
 from evp.vocabulary_training import build_vocabulary, rendered_descriptors
@@ -45,9 +46,9 @@ def test_a_bad_vocabulary_is_a_clear_error_before_any_frame(tmp_path):
     (tmp_path / "broken.npz").write_bytes(b"not a vocabulary")
     (tmp_path / "settings.yaml").write_text(f"slam:\n  vocabulary: {tmp_path / 'broken.npz'}\n")
     result = evp("run", SAMPLE, "--out", tmp_path / "run", "--config", tmp_path / "settings.yaml")
-    assert result.returncode == 2
+    assert result.returncode == ExitCode.DATA
     assert "broken.npz: not an EVP vocabulary file" in result.stderr
     assert not (tmp_path / "run").exists()
     missing = evp("vocabulary", "build", tmp_path / "nowhere", "--out", tmp_path / "v.npz")
-    assert missing.returncode == 2 and missing.stderr.startswith("error:")
+    assert missing.returncode == ExitCode.DATA and missing.stderr.startswith("error:")
     assert not (tmp_path / "v.npz").exists()

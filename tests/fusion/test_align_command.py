@@ -77,7 +77,7 @@ def test_align_before_the_spoof_is_accurate(spoofed_flight, tmp_path):
 
 def test_align_without_gps_is_a_clear_error(tmp_path, sample_path):
     result = evp("align", sample_path, "--json", tmp_path / "m.json")
-    assert result.returncode == 2 and "no GPS" in result.stderr
+    assert result.returncode == 3 and "no GPS" in result.stderr  # bad input data
     bad_mode = evp("align", sample_path, "--mode", "4d+baro")
     assert bad_mode.returncode == 2 and "--mode must be" in bad_mode.stderr
 

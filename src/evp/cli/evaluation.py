@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
 import typer
 
 from evp.errors import DataError, EvaluationError, UsageError
@@ -15,6 +14,8 @@ app = typer.Typer()
 
 def _stamped(trajectory, times: Path | None, other, label: str):
     """KITTI poses get their ``times.txt`` stamps, or, facing another KITTI file, their frame index."""
+    import numpy as np
+
     from evp.io.trajectory import read_timestamps
 
     if trajectory.timestamps is not None:

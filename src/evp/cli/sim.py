@@ -10,7 +10,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import typer
-from pydantic import ValidationError
 
 from evp.errors import ConfigError, UsageError
 
@@ -28,6 +27,8 @@ def _outage(text: str) -> tuple[float, float]:
 def sim_options(config: Path | None, typed: dict, typed_gps: dict):
     """:class:`SimOptions` from the defaults, then the YAML file, then the options typed (those
     not None), in that order; ``typed_gps`` go to the ``gps`` section."""
+    from pydantic import ValidationError
+
     from evp.config import read_settings_yaml, validation_message
     from evp.sim.scenarios import SimOptions
 

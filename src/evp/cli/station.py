@@ -3,7 +3,6 @@ recorded session re-run offline."""
 
 from __future__ import annotations
 
-import asyncio
 import json
 from pathlib import Path
 
@@ -35,6 +34,8 @@ def serve(
 def run_stream(source_spec, url, realtime, encoding, jpeg_quality, camera, max_frames, token, resume, cafile, fingerprint, out, quiet, echo) -> dict:
     """Stream a source to a station; the poses received are echoed (unless quiet) and written to
     ``out`` (poses.tum, summary.json) when given. Returns the summary."""
+    import asyncio
+
     from evp.mobile.client import StreamClient
     from evp.mobile.sources import open_source
     from evp.station.replay import tum_text

@@ -7,15 +7,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from evp.geometry.epipolar_band import epipolar_pairs, essential
+from evp.geometry.transforms import se3
 
 FX = 450.0
 
 
 def _camera(rotvec, t):
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
-    T[:3, 3] = t
-    return T
+    return se3(Rotation.from_rotvec(rotvec).as_matrix(), np.asarray(t, float))
 
 
 def _normalised(T, X):

@@ -3,16 +3,14 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from evp.geometry.transforms import se3
 from evp.optim.bundle_adjustment import BundleProblem, bundle_adjust
 
 K = np.array([[450.0, 0, 320], [0, 450.0, 190], [0, 0, 1]])
 
 
 def pose(rotvec, t):
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
-    T[:3, 3] = t
-    return T
+    return se3(Rotation.from_rotvec(rotvec).as_matrix(), np.asarray(t, float))
 
 
 def project(T, points):

@@ -5,9 +5,9 @@ frames with a specific error without losing its state."""
 import numpy as np
 import pytest
 
+from evp.config import EvalSettings
 from evp.errors import EvpError
-from evp.eval.evaluate import EvaluationOptions, evaluate
-from evp.eval.metrics import Alignment
+from evp.eval.evaluate import evaluate
 from evp.sim.scenarios import SimOptions, build_scenario
 from evp.sim.world import Renderer
 from evp.types import Frame, PoseEstimate, TrackingState, Trajectory
@@ -39,7 +39,7 @@ def _sim3(truth: Trajectory, estimates: list[PoseEstimate]) -> dict:
     """ATE summary (Sim3-aligned) of the tracked estimates."""
     tracked = [e for e in estimates if e.tracking_state.tracked]
     trajectory = Trajectory.from_poses(np.array([e.T_world_cam for e in tracked]), np.array([e.timestamp for e in tracked]))
-    return evaluate(truth, trajectory, EvaluationOptions(Alignment.SIM3, max_diff_s=0.01)).summary()
+    return evaluate(truth, trajectory, EvalSettings(align="sim3", max_time_diff_s=0.01)).summary()
 
 
 def test_initialises_and_tracks_with_millimetre_error(walk):

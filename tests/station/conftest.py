@@ -93,6 +93,7 @@ class OperatorFeed:
         self._reader: asyncio.Task | None = None
         self._thread = threading.Thread(target=self._run, name="operator-feed", daemon=True)
         self._failure: BaseException | None = None
+        self._closed = False
 
     def __enter__(self) -> OperatorFeed:
         self._thread.start()
@@ -100,7 +101,7 @@ class OperatorFeed:
         return self
 
     def __exit__(self, *exc) -> None:
-        if self._reader is not None:
+        with contextlib.suppress(RuntimeError):  # the station may have closed the feed already (its loop is closed)
             self._loop.call_soon_threadsafe(self._reader.cancel)
         self._thread.join(timeout=10)
 
@@ -121,6 +122,7 @@ class OperatorFeed:
             self._failure = exc
         finally:
             with self._arrived:
+                self._closed = True
                 self._arrived.notify_all()
             self._loop.close()
 
@@ -131,10 +133,11 @@ class OperatorFeed:
             return next((m for m in self.messages if predicate(m)), None)
 
         with self._arrived:
-            self._arrived.wait_for(lambda: found() is not None or self._failure is not None or not self._thread.is_alive(), timeout)
+            self._arrived.wait_for(lambda: found() is not None or self._closed, timeout)
             message = found()
         if message is None:
-            raise AssertionError(f"the station did not announce {what} within {timeout:g} s (feed: {self._failure!r})")
+            state = f"the feed closed ({self._failure!r})" if self._closed else f"within {timeout:g} s"
+            raise AssertionError(f"the station did not announce {what}: {state}")
         return message
 
     def event(self, code: str, session_id: str | None = None, timeout: float = 60) -> dict:

@@ -27,6 +27,7 @@ from evp.errors import EvpError, UsageError
 from evp.estimator import Estimator
 from evp.io.dataset import Dataset
 from evp.types import Frame, PoseEstimate, Trajectory
+from evp.vision.images import to_grey
 
 
 class Stage(Protocol):
@@ -217,7 +218,7 @@ class ReferenceOrbTimer(Sink):
         self.ms: list[float] = []
 
     def on_estimate(self, frame: Frame, estimate: PoseEstimate, elapsed_ms: float) -> None:
-        grey = frame.image if frame.image.ndim == 2 else cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY)
+        grey = to_grey(frame.image)
         start = time.perf_counter()
         self._orb.detectAndCompute(grey, None)
         self.ms.append((time.perf_counter() - start) * 1000.0)

@@ -36,9 +36,10 @@ def run_stream(source_spec, url, realtime, encoding, jpeg_quality, camera, max_f
     ``out`` (poses.tum, summary.json) when given. Returns the summary."""
     import asyncio
 
+    from evp.io.trajectory import tum_text
     from evp.mobile.client import StreamClient
     from evp.mobile.sources import open_source
-    from evp.station.replay import tum_text
+    from evp.station.replay import tracked_trajectory
 
     if encoding not in ("auto", "jpeg", "png", "raw"):
         raise UsageError(f"--encoding {encoding!r}: choose jpeg, png, raw or auto")
@@ -57,7 +58,7 @@ def run_stream(source_spec, url, realtime, encoding, jpeg_quality, camera, max_f
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         poses = [report.poses[k] for k in sorted(report.poses)]
-        (out / "poses.tum").write_text(tum_text(poses))
+        (out / "poses.tum").write_text(tum_text(tracked_trajectory(poses)))
         (out / "summary.json").write_text(json.dumps(summary, indent=2))
     return summary
 

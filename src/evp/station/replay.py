@@ -16,12 +16,13 @@ from pathlib import Path
 import numpy as np
 
 from evp.errors import DataError, UsageError
+from evp.io.trajectory import tum_text
 from evp.pipeline import Pipeline, Sink
 from evp.station.estimation import pose_message
 from evp.station.protocol import ENCODING_IDS, ImageMessage, Pose, ProtocolError, image_pixels
 from evp.station.recording import RAW_ROS_ENCODING, TOPIC_CAMERA_INFO, TOPIC_IMAGE_COMPRESSED, TOPIC_IMAGE_RAW, decoded_messages
 from evp.station.store import SessionStore
-from evp.types import Frame, PoseEstimate
+from evp.types import Frame, PoseEstimate, TrackingState, Trajectory
 
 ROS_TO_RAW = {ros: ours for ours, ros in RAW_ROS_ENCODING.items()}
 
@@ -162,19 +163,20 @@ def live_poses(store: SessionStore, session_id: str) -> list[Pose]:
     ]
 
 
-def tum_text(poses: list[Pose]) -> str:
-    """Tracked poses in TUM format (qx qy qz qw: the file's order, not the wire's)."""
-    lines = ["# timestamp tx ty tz qx qy qz qw"]
-    lines += [
-        f"{p.timestamp!r} {p.t[0]!r} {p.t[1]!r} {p.t[2]!r} {p.q[1]!r} {p.q[2]!r} {p.q[3]!r} {p.q[0]!r}" for p in poses if p.state in ("OK", "RELOCALIZED")
-    ]
-    return "\n".join(lines) + "\n"
+def tracked_trajectory(poses: list[Pose]) -> Trajectory:
+    """The tracked wire poses as a trajectory (the wire's (qw, qx, qy, qz) turned to x, y, z, w)."""
+    tracked = [p for p in poses if TrackingState(p.state).tracked]
+    return Trajectory(
+        np.array([p.t for p in tracked], float).reshape(-1, 3),
+        np.array([[*p.q[1:], p.q[0]] for p in tracked], float).reshape(-1, 4),
+        np.array([p.timestamp for p in tracked], float),
+    )
 
 
 def write_replay(out: Path, store: SessionStore, session_id: str, poses: list[Pose]) -> dict:
     out.mkdir(parents=True, exist_ok=True)
-    (out / "trajectory.tum").write_text(tum_text(poses))
-    (out / "trajectory_live.tum").write_text(tum_text(live_poses(store, session_id)))
+    (out / "trajectory.tum").write_text(tum_text(tracked_trajectory(poses)))
+    (out / "trajectory_live.tum").write_text(tum_text(tracked_trajectory(live_poses(store, session_id))))
     comparison = compare_with_live(store, session_id, poses)
     (out / "comparison.json").write_text(json.dumps(comparison, indent=2))
     return comparison

@@ -32,8 +32,9 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from evp import __version__
 from evp.config import validation_message
+from evp.io.trajectory import tum_text
 from evp.station.protocol import Error, Hello, ProtocolError, Welcome, decode_text, encode
-from evp.station.replay import live_poses, tum_text
+from evp.station.replay import live_poses, tracked_trajectory
 from evp.station.station import Station
 
 HELLO_TIMEOUT_S = 10.0
@@ -182,7 +183,7 @@ async def trajectory(request: Request) -> Response:
     session_id = request.path_params["session_id"]
     poses = await asyncio.to_thread(live_poses, station.store, session_id)
     headers = {"Content-Disposition": f'attachment; filename="{session_id}.tum"'}
-    return PlainTextResponse(tum_text(poses), headers=headers)
+    return PlainTextResponse(tum_text(tracked_trajectory(poses)), headers=headers)
 
 
 async def recording(request: Request) -> Response:

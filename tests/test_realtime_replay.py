@@ -8,6 +8,7 @@ import sys
 import numpy as np
 import pytest
 
+from evp.errors import UsageError
 from evp.pipeline import paced_frames
 from evp.types import Frame
 from tests.conftest import SAMPLE
@@ -65,7 +66,7 @@ def test_a_stamp_that_does_not_increase_is_passed_on_for_the_caller_to_reject():
 
 
 def test_speed_must_be_positive():
-    with pytest.raises(ValueError, match="positive"):
+    with pytest.raises(UsageError, match="positive"):
         list(paced_frames(_frames([0.0]), 0.0, print))
 
 

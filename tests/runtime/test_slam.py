@@ -5,10 +5,13 @@ import multiprocessing
 import threading
 
 from evp.config import OrbSettings, SlamSettings
+from evp.io.vocabulary_files import default_vocabulary_path, load_vocabulary
 from evp.runtime.mapping_worker import MappingWorker
 from evp.runtime.slam import build_slam
 from evp.slam.local_mapping import InlineMapping
 from evp.types import CameraModel
+
+VOCABULARY = load_vocabulary(default_vocabulary_path())
 
 CAMERA = CameraModel(width=320, height=240, fx=250.0, fy=250.0, cx=160.0, cy=120.0)
 
@@ -34,7 +37,7 @@ def _held_elsewhere(lock) -> bool:
 
 
 def test_thread_mapping_gets_a_worker_a_helper_process_and_a_real_lock_all_released_by_finish():
-    slam = build_slam(CAMERA, OrbSettings(n_features=300), SlamSettings(mapping="thread"))
+    slam = build_slam(CAMERA, OrbSettings(n_features=300), SlamSettings(mapping="thread"), VOCABULARY)
     assert isinstance(slam.mapping, MappingWorker) and slam.scheduler.parallel is not None
     with slam.map.lock:
         assert _held_elsewhere(slam.map.lock)
@@ -44,7 +47,7 @@ def test_thread_mapping_gets_a_worker_a_helper_process_and_a_real_lock_all_relea
 
 
 def test_inline_mapping_gets_the_helper_thread_only():
-    slam = build_slam(CAMERA, OrbSettings(n_features=300), SlamSettings(mapping="inline"))
+    slam = build_slam(CAMERA, OrbSettings(n_features=300), SlamSettings(mapping="inline"), VOCABULARY)
     assert isinstance(slam.mapping, InlineMapping) and not multiprocessing.active_children()
     slam.finish()
     assert not _runtime_threads()

@@ -5,9 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from evp.config import Settings
+from evp.station.base_station import Station
 from evp.station.protocol import MAX_IMAGE_BYTES
 from evp.station.server import create_app
-from evp.station.station import Station
 from evp.station.tls import ensure_certificate, fingerprint, local_addresses
 
 

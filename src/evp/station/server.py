@@ -33,9 +33,9 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 from evp import __version__
 from evp.config import validation_message
 from evp.io.trajectory import tum_text
+from evp.station.base_station import Station
 from evp.station.protocol import Error, Hello, ProtocolError, Welcome, decode_text, encode
 from evp.station.replay import live_poses, tracked_trajectory
-from evp.station.station import Station
 
 HELLO_TIMEOUT_S = 10.0
 

@@ -1,5 +1,8 @@
 """evp.cli.app: the assembled application, one-line errors, and the exit code of each category."""
 
+import subprocess
+import sys
+
 import pytest
 
 from evp import __version__
@@ -68,3 +71,14 @@ def test_the_entry_point_is_the_app_modules_main():
 
     scripts = tomllib.loads((Path(__file__).resolve().parents[2] / "pyproject.toml").read_text())["project"]["scripts"]
     assert scripts["evp"] == "evp.cli:main" and main.__module__ == "evp.cli.app"
+
+
+def test_a_missing_optional_extra_is_named(tmp_path):
+    """A core-only install (pip install evp) has no station libraries: the command says which
+    extra to install, as a usage error, instead of a traceback."""
+    blocked = "import sys; sys.modules['sqlalchemy'] = None; from evp.cli import main; main()"
+    proc = subprocess.run(
+        [sys.executable, "-c", blocked, "replay", "0", "--db", f"sqlite:///{tmp_path}/none.db"], capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == ExitCode.USAGE, proc.stderr
+    assert "'station' extra" in proc.stderr and "evp[station]" in proc.stderr and "Traceback" not in proc.stderr

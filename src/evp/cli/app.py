@@ -54,6 +54,14 @@ def _root(
     _state["debug"] = debug
 
 
+# the packages of the optional extras (pyproject.toml), by the import name a missing one raises
+OPTIONAL_MODULES = {
+    **dict.fromkeys(("starlette", "uvicorn", "websockets", "sqlalchemy", "cryptography", "segno"), "station"),
+    "pymavlink": "mavlink",
+    "psycopg": "postgres",
+}
+
+
 def main() -> None:
     """Entry point: an :class:`EvpError` becomes one line on stderr and its category's exit code
     (``--debug`` adds the traceback); any other exception is a bug: traceback, exit 1."""
@@ -64,6 +72,12 @@ def main() -> None:
             traceback.print_exc()
         typer.echo(f"error: {exc}", err=True)
         sys.exit(exc.exit_code)
+    except ModuleNotFoundError as exc:
+        extra = OPTIONAL_MODULES.get((exc.name or "").partition(".")[0])
+        if extra is None:
+            raise
+        typer.echo(f"error: this command needs {exc.name}, in EVP's '{extra}' extra: pip install 'evp[{extra}]' (scripts/setup.sh installs every extra)", err=True)
+        sys.exit(ExitCode.USAGE)
     except Exception:
         traceback.print_exc()
         typer.echo("internal error: the traceback above is a bug in EVP", err=True)

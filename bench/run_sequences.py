@@ -4,11 +4,11 @@ accuracy, how much is tracked, and speed. The main bench of the SLAM engine.
 Each sequence goes through the same code as `evp run` (estimator `auto`: SLAM for video, the
 nadir mosaic odometry and survey adjustment for survey photos), mapping inline, so ATE and
 tracking are deterministic; milliseconds are not. Also relocalisation on EuRoC MH01 after a covered
-lens (first 150 frames mapped, 3 frames black, frames 100-119 shown again), and the circle (seed 1,
+lens (first 150 frames mapped, 3 frames black, frames 100-119 shown again; the trial lives in
+`tests/slam/relocalisation_trials.py`, shared with the tests), and the circle (seed 1,
 26 s, one lap, rendered by `evp sim`) with the light VO as well.
 
 Usage: python bench/run_sequences.py [--out runs/bench] [--estimator auto|slam|klt-vo] [--only SEQ ...] [--set SECTION.KEY=VALUE ...] [--circle-seeds N ...]
-Also: relocalisation on EuRoC MH01 after a forced loss (`tests/slam/relocalisation_trials.py`).
 
 Prints one Markdown row per sequence: ATE (Sim3-aligned RMSE, m; against GPS for the Toledo
 photos) and as a share of the path, frames tracked in trajectory.tum and answered live, frames to

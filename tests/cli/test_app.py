@@ -77,8 +77,6 @@ def test_a_missing_optional_extra_is_named(tmp_path):
     """A core-only install (pip install evp) has no station libraries: the command says which
     extra to install, as a usage error, instead of a traceback."""
     blocked = "import sys; sys.modules['sqlalchemy'] = None; from evp.cli import main; main()"
-    proc = subprocess.run(
-        [sys.executable, "-c", blocked, "replay", "0", "--db", f"sqlite:///{tmp_path}/none.db"], capture_output=True, text=True, timeout=120
-    )
+    proc = subprocess.run([sys.executable, "-c", blocked, "replay", "0", "--db", f"sqlite:///{tmp_path}/none.db"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == ExitCode.USAGE, proc.stderr
     assert "'station' extra" in proc.stderr and "evp[station]" in proc.stderr and "Traceback" not in proc.stderr

@@ -76,7 +76,9 @@ def main() -> None:
         extra = OPTIONAL_MODULES.get((exc.name or "").partition(".")[0])
         if extra is None:
             raise
-        typer.echo(f"error: this command needs {exc.name}, in EVP's '{extra}' extra: pip install 'evp[{extra}]' (scripts/setup.sh installs every extra)", err=True)
+        typer.echo(
+            f"error: this command needs {exc.name}, in EVP's '{extra}' extra: pip install 'evp[{extra}]' (scripts/setup.sh installs every extra)", err=True
+        )
         sys.exit(ExitCode.USAGE)
     except Exception:
         traceback.print_exc()

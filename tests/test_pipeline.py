@@ -14,7 +14,7 @@ from evp.errors import DatasetError, FrameError
 from evp.estimator import Estimator
 from evp.io.registry import open_dataset
 from evp.io.run_outputs import write_outputs
-from evp.pipeline import Pipeline, RealTime, RunResult, Sink, run_dataset
+from evp.pipeline import Pipeline, RealTime, RunResult, Sink, run_dataset, run_frames
 from evp.run_setup import make_estimator, resolve_settings
 from evp.types import Frame, PoseEstimate, TrackingState
 from tests.conftest import SAMPLE
@@ -191,3 +191,25 @@ def test_a_run_that_fails_closes_the_estimator():
     with pytest.raises(RuntimeError, match="a bug"):
         Pipeline(estimator).run(_frames([0.0, 0.1, 0.2]))
     assert estimator.calls == ["feed 0", "settle", "close"]  # closed, not finished
+
+
+def test_the_refined_trajectory_is_asked_of_the_estimator_once():
+    asked = []
+
+    class Refined(_Slider):
+        def refined_trajectory(self):
+            asked.append(1)
+            return np.array([0.0]), np.eye(4)[None]
+
+    estimator = Refined()
+    result = run_frames(estimator, _frames([0.0, 1.0]))
+    assert result.final_trajectory() is result.final_trajectory() is result.refined
+    assert len(asked) == 1
+
+
+def test_an_estimator_must_say_how_it_feeds():
+    class Incomplete(Estimator):
+        pass
+
+    with pytest.raises(TypeError, match="feed"):
+        Incomplete()

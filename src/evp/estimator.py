@@ -7,6 +7,7 @@ attributes (``hasattr``/``isinstance``) to learn what an estimator can do.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from typing import Any
 
 import numpy as np
@@ -14,26 +15,30 @@ import numpy as np
 from evp.types import CameraModel, Frame, PoseEstimate
 
 
-class Estimator:
+class Estimator(ABC):
     """A pose estimator fed one frame at a time, in time order."""
 
     reset_counter: int = 0  # bumped at each discontinuity (relocalisation, restart) consumers must know of
     lens: CameraModel | None = None  # the lens model it estimated from the images (a survey's self-calibration); None if none
 
+    @abstractmethod
     def feed(self, frame: Frame) -> PoseEstimate:
-        """Estimate the camera pose for one frame (frames must arrive in time order)."""
-        raise NotImplementedError
+        """Estimate the camera pose for one frame (frames must arrive in time order); a frame it
+        cannot use raises an ``EvpError`` naming why (the pipeline skips it and goes on)."""
 
     def settle(self) -> None:
         """Finish the work the last frame started (mapping its keyframe) now, after its answer is
         out; the next :meth:`feed` does it first otherwise. Default: nothing to do."""
+        return None
 
     def finish(self) -> None:
         """End of the stream: wait for background work and release what the estimator started."""
+        return None
 
     def close(self) -> None:
         """Release what the estimator started (threads, processes) without finishing its work: a
         run that failed part way. Safe to call after :meth:`finish`. Default: nothing started."""
+        return None
 
     def refined_trajectory(self) -> tuple[np.ndarray, np.ndarray] | None:
         """Timestamps (N,) and ``T_world_cam`` (N, 4, 4) of the frames it localised, improved once

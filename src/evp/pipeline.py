@@ -143,6 +143,8 @@ class RunResult(Sink):
     skipped: list[str] = field(default_factory=list)  # why frames were not used
     dropped: list[int] = field(default_factory=list)  # frames a real-time replay had no time for
     reference_orb_ms: list[float] = field(default_factory=list)  # OpenCV's ORB on the same frames, when timed
+    refined: Trajectory | None = field(default=None, init=False)  # the estimator's refined trajectory, once asked
+    _refinement_asked: bool = field(default=False, init=False, repr=False)
 
     def on_estimate(self, frame: Frame, estimate: PoseEstimate, elapsed_ms: float) -> None:
         self.estimates.append(estimate)
@@ -184,12 +186,13 @@ class RunResult(Sink):
 
     def final_trajectory(self) -> Trajectory:
         """The estimator's refined trajectory when it offers one (SLAM through the final
-        bundle-adjusted keyframes, a photo survey adjusted as a whole); else the live one."""
-        refined = self.estimator.refined_trajectory()
-        if refined is None:
-            return self.trajectory()
-        stamps, poses = refined
-        return Trajectory.from_poses(poses, stamps, "estimate")
+        bundle-adjusted keyframes, a photo survey adjusted as a whole); else the live one. The
+        estimator is asked once (SLAM's first answer adjusts the whole map); ``refined`` keeps it."""
+        if not self._refinement_asked:
+            self._refinement_asked = True
+            answer = self.estimator.refined_trajectory()
+            self.refined = None if answer is None else Trajectory.from_poses(answer[1], answer[0], "estimate")
+        return self.trajectory() if self.refined is None else self.refined
 
 
 class Progress(Sink):

@@ -61,8 +61,8 @@ def run(
         # a real-time replay has no spare time to also run OpenCV's ORB on each frame
         reference_orb = None if realtime else settings.orb.n_features
         result = run_dataset(dataset, estimator, lambda n: progress.advance(task, n), reference_orb, speed if realtime else None)
-    # a survey adjustment or a global bundle adjustment: seconds after the last frame (estimators
-    # keep what it costs; write_outputs asks again)
+    # a survey adjustment or a global bundle adjustment: seconds after the last frame (the result
+    # keeps it for write_outputs)
     with Console(stderr=True).status(f"{dataset.name}: refining the trajectory (end of run)"):
         result.final_trajectory()
     metrics = write_outputs(result, dataset, settings, out)

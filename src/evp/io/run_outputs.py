@@ -51,7 +51,7 @@ def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: 
     write_settings(settings, out)
     trajectory = result.final_trajectory()
     write_trajectory(out / "trajectory.tum", trajectory)
-    if estimator.refined_trajectory() is not None:
+    if result.refined is not None:
         write_trajectory(out / "trajectory_live.tum", result.trajectory())
     if estimator.lens is not None:
         from evp.calib.camera_files import write_opencv_yaml

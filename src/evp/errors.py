@@ -89,6 +89,15 @@ class UnknownFormatError(DataError):
     """No reader recognises a path (or the path does not exist)."""
 
 
+class AmbiguousFormatError(DataError):
+    """Two readers recognise a path; the user names the format (``--format``) instead of EVP guessing."""
+
+
+class InitialisationError(DataError):
+    """A run ended without tracking one frame: the sequence is too short, or moves too little, for
+    the estimator to initialise."""
+
+
 class FrameError(DataError):
     """A camera frame cannot be used (empty, or not the calibrated size); runs skip it and go on."""
 

@@ -21,6 +21,7 @@ def align(
     trajectory: Path | None = typer.Option(None, "--trajectory", help="Visual track (TUM, e.g. from evp run) instead of running the estimator."),
     mode: str | None = typer.Option(None, "--mode", help="2d+baro or 3d+baro."),
     config: Path | None = typer.Option(None, "--config", help="Settings YAML (align, gps_monitor, vo sections)."),
+    fmt: str | None = typer.Option(None, "--format", help="Reader name, to skip auto-detection."),
 ) -> None:
     """Align the visual track to GPS (seed 002), report the error against GPS after the alignment
     phase, and check GPS for spoofing and jamming."""
@@ -29,6 +30,7 @@ def align(
 
     from evp.config import AlignmentSettings, load_settings, write_settings
     from evp.eval.flight_report import flight_summary, write_flight_report
+    from evp.cli.dataset import echo_warnings
     from evp.fusion.flight import process_flight
     from evp.fusion.gps_input import AlignmentError
     from evp.io.registry import open_dataset
@@ -42,7 +44,8 @@ def align(
             settings = settings.model_copy(update={"align": AlignmentSettings(**{**settings.align.model_dump(), "mode": mode})})
         except ValidationError:
             raise UsageError(f"--mode must be 2d+baro or 3d+baro, not {mode!r}") from None
-    dataset = open_dataset(flight)
+    dataset = open_dataset(flight, fmt)
+    echo_warnings(dataset)
     settings = resolve_settings(settings, dataset)  # settings.yaml then names what ran
     if trajectory is not None:
         odometry = read_trajectory(trajectory)
@@ -62,9 +65,12 @@ def align(
     else:
         summary = flight_summary(result)
     a = summary["alignment"]
-    typer.echo(
-        f"aligned on {a['pairs_used']} pairs ({a['mode']}, {a['model']}, clock offset {a['clock_offset_s']:+.2f} s, validation RMSE {a['validation_rmse_m']:.2f} m)"
+    validation = (
+        f"validation RMSE {a['validation_rmse_m']:.2f} m"
+        if a["validation_rmse_m"] is not None
+        else "not validated: too few pairs to hold some out, fitted on all with the default settings"
     )
+    typer.echo(f"aligned on {a['pairs_used']} pairs ({a['mode']}, {a['model']}, clock offset {a['clock_offset_s']:+.2f} s, {validation})")
     typer.echo(
         f"horizontal error vs GPS over {summary['n_evaluated']} later fixes: mean {summary['mean']:.2f} m, max {summary['max']:.2f} m, "
         f"Q1 {summary['q1']:.2f}, Q3 {summary['q3']:.2f}, IQR {summary['iqr']:.2f}, std {summary['std']:.2f}"

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from evp.errors import DatasetError
+from evp.errors import DatasetError, InitialisationError
 
 app = typer.Typer()
 ALIGNED = {"none": "unaligned", "se3": "SE3-aligned", "sim3": "Sim3-aligned"}
@@ -54,6 +54,7 @@ def run(
     dataset = open_dataset(dataset_path, fmt)
     if dataset.num_frames == 0:
         raise DatasetError(dataset_path, f"no camera frames to run on ({dataset.format})")
+    echo_warnings(dataset)
     settings = resolve_settings(settings, dataset)  # settings.yaml then names what ran
     estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
     with Progress(transient=True) as progress:
@@ -66,6 +67,12 @@ def run(
     with Console(stderr=True).status(f"{dataset.name}: refining the trajectory (end of run)"):
         result.final_trajectory()
     metrics = write_outputs(result, dataset, settings, out)
+    if metrics["tracked_frames"] == 0:
+        frames = f"{dataset.num_frames} frame" + ("s" if dataset.num_frames != 1 else "")
+        raise InitialisationError(
+            f"{dataset.name}: too short or too still to initialise: no frame tracked in {frames} ({dataset.frame_times[-1] - dataset.frame_times[0]:.2f} s); "
+            f"monocular initialisation needs two views with parallax between them (outputs in {out})"
+        )
     typer.echo(
         f"{dataset.name}: tracked {metrics['tracked_frames']}/{metrics['frames']} frames "
         f"({100 * metrics['tracked_fraction']:.1f} %; {metrics['tracked_live_frames']} answered live, the first at frame {metrics['init_frame']})"
@@ -79,6 +86,12 @@ def run(
     for reason in metrics["skipped"]:
         typer.echo(f"skipped: {reason}", err=True)
     typer.echo(f"results in {out}")
+
+
+def echo_warnings(dataset) -> None:
+    """What the reader had to assume (nominal frame times...), on stderr before the work starts."""
+    for warning in dataset.warnings:
+        typer.echo(f"warning: {warning}", err=True)
 
 
 @app.command()

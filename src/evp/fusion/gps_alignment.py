@@ -3,8 +3,10 @@
 Pairs (P_odom, P_gps) are collected over a window after the target altitude is reached (or over a
 given first fraction of the fixes), the camera-vs-GPS clock offset is estimated, pairs are filtered
 by height and speed (relaxed adaptively when too few remain), and the transform model and RANSAC
-threshold are chosen by a grid search scored on a held-out, later part of the window. The chosen
-transform then maps every later visual position; the altitude comes from the barometer.
+threshold are chosen by a grid search scored on a held-out, later part of the window; a window too
+short to hold pairs out (a survey of a few photos) is fitted on all its pairs with default settings
+instead, with a warning. The chosen transform then maps every later visual position; the altitude
+comes from the barometer.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from evp.geometry.alignment import umeyama
 from evp.types import Trajectory
 
 ABSOLUTE_MIN_PAIRS = 6  # below this no alignment is attempted (a 3-D affine needs 4, plus validation)
+MIN_VALIDATION_PAIRS = 3  # fewer held-out pairs cannot rank the grid: the fit then uses every pair (default_fit)
 
 
 @dataclass
@@ -29,7 +32,7 @@ class AlignmentResult:
     clock_offset_s: float  # GPS clock minus camera clock
     window: tuple[float, float]  # GPS-clock times of the alignment phase
     pairs_used: int
-    validation_rmse_m: float
+    validation_rmse_m: float | None  # None: too few pairs to hold some out (fitted on all, default settings)
     chosen: dict
     aligned: Trajectory  # ENU positions at the odometry (camera) times
     warnings: list[str] = field(default_factory=list)
@@ -144,13 +147,57 @@ def align_flight(
     heights = np.abs(pairs_gps[:, 2] - target)
     split = pair_times[0] + (1 - settings.validation_fraction) * (pair_times[-1] - pair_times[0])
     train, validate = pair_times <= split, pair_times > split
-    if validate.sum() < 3:
-        raise AlignmentError("the alignment phase is too short to hold out validation pairs")
     models = MODELS if settings.model == "auto" else (settings.model,)
     if "affine" in models and _affine_unconstrained(pairs_gps, settings.mode):
         # an affine map has a free stretch across a flat (3-D) or straight (2-D) set of pairs
         warnings.append("the alignment pairs do not span enough directions for an affine fit: similarity used")
         models = ("similarity",)
+    if validate.sum() < MIN_VALIDATION_PAIRS:
+        rmse, params = None, default_fit(models, settings)
+        warnings.append(
+            f"the alignment phase has {len(pair_times)} pairs, too few to hold {MIN_VALIDATION_PAIRS} out for validation: "
+            f"fitted on all of them with the default settings ({params['model']}, the grid's widest RANSAC threshold "
+            f"{params['ransac_threshold_m']:g} m and height and speed filters), not validated"
+        )
+    else:
+        rmse, params = _grid_search(pairs_odom, pairs_gps, heights, speeds, train, validate, models, settings)
+    keep = (heights <= params["height_tolerance_m"]) & (speeds <= params["max_speed_m_s"])
+    transform, inliers = fit_transform(pairs_odom[keep], pairs_gps[keep], settings.mode, params["model"], params["ransac_threshold_m"])
+    if inliers.sum() < max(4, 0.3 * keep.sum()):
+        warnings.append(f"only {int(inliers.sum())} of {int(keep.sum())} pairs are RANSAC inliers: the alignment may be poor")
+    baro = None
+    if baro_up is not None:
+        baro = np.interp(odom.timestamps, baro_up.timestamps, baro_up.positions[:, 2])
+    elif settings.mode == "3d+baro":
+        warnings.append("no barometer: the altitude comes from the 3-D transform of the visual track")
+    aligned_positions = transform.apply(odom.positions, baro)
+    aligned = Trajectory(aligned_positions, np.tile([0.0, 0.0, 0.0, 1.0], (len(odom), 1)), odom.timestamps.copy(), "aligned_enu")
+    return AlignmentResult(transform, offset, (start, end), int(keep.sum()), rmse, params | {"target_altitude_m": target}, aligned, warnings)
+
+
+def default_fit(models: tuple[str, ...], settings: AlignmentSettings) -> dict:
+    """The settings of a fit that cannot be validated: the simplest allowed model (a similarity
+    has 7 degrees of freedom, a 3-D affine 12, which a handful of pairs cannot pin down) and the
+    grid's least selective filters (a few pairs cannot spare any on evidence they cannot check)."""
+    return {
+        "model": "similarity" if "similarity" in models else models[0],
+        "ransac_threshold_m": max(settings.ransac_thresholds_m),
+        "height_tolerance_m": max(settings.height_tolerances_m),
+        "max_speed_m_s": max(settings.max_speeds_m_s),
+    }
+
+
+def _grid_search(
+    pairs_odom: np.ndarray,
+    pairs_gps: np.ndarray,
+    heights: np.ndarray,
+    speeds: np.ndarray,
+    train: np.ndarray,
+    validate: np.ndarray,
+    models: tuple[str, ...],
+    settings: AlignmentSettings,
+) -> tuple[float, dict]:
+    """(validation RMSE, settings) of the grid point that fits the training pairs best as scored on the held-out ones."""
     required = min(settings.min_pairs, int(train.sum()))  # filters may not leave fewer (the unfiltered set always qualifies)
     best: tuple[float, dict] | None = None
     for model, threshold, height_tol, max_speed in itertools.product(
@@ -170,19 +217,7 @@ def align_flight(
             best = (rmse, params)
     if best is None:
         raise AlignmentError(f"no transform could be fitted to the {int(train.sum())} training pairs (RANSAC failed under every setting of the grid)")
-    rmse, params = best
-    keep = (heights <= params["height_tolerance_m"]) & (speeds <= params["max_speed_m_s"])
-    transform, inliers = fit_transform(pairs_odom[keep], pairs_gps[keep], settings.mode, params["model"], params["ransac_threshold_m"])
-    if inliers.sum() < max(4, 0.3 * keep.sum()):
-        warnings.append(f"only {int(inliers.sum())} of {int(keep.sum())} pairs are RANSAC inliers: the alignment may be poor")
-    baro = None
-    if baro_up is not None:
-        baro = np.interp(odom.timestamps, baro_up.timestamps, baro_up.positions[:, 2])
-    elif settings.mode == "3d+baro":
-        warnings.append("no barometer: the altitude comes from the 3-D transform of the visual track")
-    aligned_positions = transform.apply(odom.positions, baro)
-    aligned = Trajectory(aligned_positions, np.tile([0.0, 0.0, 0.0, 1.0], (len(odom), 1)), odom.timestamps.copy(), "aligned_enu")
-    return AlignmentResult(transform, offset, (start, end), int(keep.sum()), rmse, params | {"target_altitude_m": target}, aligned, warnings)
+    return best
 
 
 def horizontal_errors_after(result: AlignmentResult, gps: GpsTrack, max_gap_s: float = 1.0) -> tuple[np.ndarray, np.ndarray]:

@@ -40,6 +40,7 @@ class Dataset:
     ground_truth_note: str = ""
     trajectories: dict[str, Trajectory] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)  # what the reader had to assume (nominal frame times...): commands print them
 
     @property
     def num_frames(self) -> int:

@@ -1,8 +1,12 @@
 """The explicit registry of dataset readers and path auto-detection.
 
-A reader is a small object with a ``name``, a one-line ``description``, ``detect(path) -> bool``
-and ``read(path) -> Dataset``. Readers are listed in :mod:`evp.io.readers` in detection order
-(most specific first); adding a format is adding one module and one line there.
+A reader is a small object with a ``name``, a one-line ``description``, what its detection
+``looks_for``, ``detect(path) -> bool`` and ``read(path) -> Dataset``. Readers are listed in
+:mod:`evp.io.readers`; adding a format is adding one module and one line there.
+
+Detection never guesses between formats: a path that two readers claim is refused with both names
+and the ``--format`` option that settles it, and a path that none claims is refused with what
+each reader looked for.
 """
 
 from __future__ import annotations
@@ -10,13 +14,14 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Protocol
 
-from evp.errors import UnknownFormatError
+from evp.errors import AmbiguousFormatError, UnknownFormatError
 from evp.io.dataset import Dataset
 
 
 class DatasetReader(Protocol):
     name: str
     description: str
+    looks_for: str
 
     def detect(self, path: Path) -> bool: ...
 
@@ -24,9 +29,10 @@ class DatasetReader(Protocol):
 
 
 def readers() -> list[DatasetReader]:
-    from evp.io.readers import READERS
+    """Every reader, the fallbacks last."""
+    from evp.io.readers import FALLBACK_READERS, READERS
 
-    return list(READERS)
+    return [*READERS, *FALLBACK_READERS]
 
 
 def reader_by_name(name: str) -> DatasetReader:
@@ -37,13 +43,22 @@ def reader_by_name(name: str) -> DatasetReader:
 
 
 def detect_reader(path: str | Path) -> DatasetReader:
+    """The one reader that recognises ``path``; :class:`AmbiguousFormatError` when two do."""
+    from evp.io.readers import FALLBACK_READERS, READERS
+
     path = Path(path)
     if not path.exists():
         raise UnknownFormatError(f"{path}: no such file or folder")
-    for reader in readers():
-        if reader.detect(path):
-            return reader
-    raise UnknownFormatError(f"{path}: not a dataset EVP recognises (formats: {', '.join(r.name for r in readers())})")
+    for candidates in (READERS, FALLBACK_READERS):
+        matches = [reader for reader in candidates if reader.detect(path)]
+        if len(matches) > 1:
+            found = " and ".join(f"{r.name} ({r.looks_for})" for r in matches)
+            choose = " or ".join(f"--format {r.name}" for r in matches)
+            raise AmbiguousFormatError(f"{path}: matches more than one dataset format: {found}; name the one to read with {choose}")
+        if matches:
+            return matches[0]
+    looked = "; ".join(f"{r.name}: {r.looks_for}" for r in readers())
+    raise UnknownFormatError(f"{path}: not a dataset EVP recognises (looked for {looked})")
 
 
 def open_dataset(path: str | Path, fmt: str | None = None) -> Dataset:

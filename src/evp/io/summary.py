@@ -54,6 +54,7 @@ def summarise(dataset: Dataset) -> dict:
     if dataset.trajectories:
         out["trajectories"] = {name: {"poses": len(t), "path_length_m": t.path_length, "duration_s": t.duration} for name, t in dataset.trajectories.items()}
     out["notes"] = list(dataset.notes)
+    out["warnings"] = list(dataset.warnings)
     return out
 
 
@@ -82,4 +83,5 @@ def describe(summary: dict) -> str:
     for name, t in summary.get("trajectories", {}).items():
         lines.append(f"  trajectory {name}: {t['poses']} poses, {t['path_length_m']:.3f} m, {t['duration_s']:.2f} s")
     lines += [f"  note: {n}" for n in summary["notes"]]
+    lines += [f"  warning: {w}" for w in summary["warnings"]]
     return "\n".join(lines)

@@ -81,7 +81,12 @@ def detect_trajectory_format(path: Path) -> TrajectoryFormat:
         return TrajectoryFormat.CSV
     if "," in first:
         return TrajectoryFormat.EUROC
-    count = len(first.split())
+    fields = first.split()
+    try:
+        float(fields[0])
+    except ValueError:  # a label such as KITTI calib.txt's "P0:": not poses
+        raise TrajectoryFormatError(path, f"not a trajectory: the first value {fields[0]!r} is not a number", line=number) from None
+    count = len(fields)
     if count == 8:
         return TrajectoryFormat.TUM
     if count in (12, 13):

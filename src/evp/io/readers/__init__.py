@@ -1,4 +1,9 @@
-"""The dataset readers EVP knows, in detection order (most specific first)."""
+"""The dataset readers EVP knows.
+
+Auto-detection asks every reader of ``READERS``; a path two of them claim is refused as ambiguous.
+``FALLBACK_READERS`` are asked only when none of those claims the path: nearly every dataset
+folder also holds trajectory files (its ground truth), which are not a dataset of their own.
+"""
 
 from evp.io.readers.comma2k19 import Comma2k19Reader
 from evp.io.readers.euroc import EurocReader
@@ -19,5 +24,5 @@ READERS = (
     VideoReader(),
     ImageFolderReader(),
     ExifPhotoReader(),
-    TrajectoryFilesReader(),
 )
+FALLBACK_READERS = (TrajectoryFilesReader(),)

@@ -18,6 +18,7 @@ ROAD_CAMERA = CameraModel(1164, 874, 910.0, 910.0, 582.0, 437.0, name="comma_eon
 class Comma2k19Reader:
     name = "comma2k19"
     description = "comma2k19 segment as CSV (imu.csv, gnss_ublox_fix.csv, can_wheel_speeds.csv, INS ground truth)"
+    looks_for = "imu.csv and gnss_ublox_fix.csv"
 
     def detect(self, path: Path) -> bool:
         return path.is_dir() and (path / "imu.csv").is_file() and (path / "gnss_ublox_fix.csv").is_file()

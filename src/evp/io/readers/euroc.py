@@ -26,25 +26,44 @@ def _t_body_sensor(path: Path) -> np.ndarray:
         raise DatasetError(path, f"cannot read T_BS extrinsics: {exc}") from exc
 
 
+def _stamped_images(folder: Path) -> list[Path]:
+    """The PNGs of ``folder`` named by an integer nanosecond timestamp, in time order."""
+    if not folder.is_dir():
+        return []
+    return sorted((p for p in folder.glob("*.png") if p.stem.isdigit()), key=lambda p: int(p.stem))
+
+
 class EurocReader:
     name = "euroc"
     description = "EuRoC MAV / ASL folder (mav0/cam0/data.csv, sensor.yaml, imu0, state_groundtruth_estimate0)"
+    looks_for = "mav0/cam0/data.csv, or mav0/cam0/data/ of images named by their nanosecond timestamps"
 
     def detect(self, path: Path) -> bool:
-        return path.is_dir() and (_mav0(path) / "cam0" / "data.csv").is_file()
+        cam_dir = _mav0(path) / "cam0"
+        return path.is_dir() and ((cam_dir / "data.csv").is_file() or bool(_stamped_images(cam_dir / "data")))
 
     def read(self, path: Path) -> Dataset:
         mav0 = _mav0(path)
         root = mav0.parent
         cam_dir = mav0 / "cam0"
-        stamps_ns, names, lines = read_named_lines(cam_dir / "data.csv")
-        times = stamps_ns / 1e9
-        check_increasing(cam_dir / "data.csv", times, "image", lines)
-        paths = [cam_dir / "data" / name for name in names]
-        missing = [p for p in paths if not p.is_file()]
-        if missing:
-            raise DatasetError(cam_dir / "data.csv", f"{len(missing)} listed images are missing, first {missing[0].name}", line=lines[paths.index(missing[0])])
+        if (cam_dir / "data.csv").is_file():
+            stamps_ns, names, lines = read_named_lines(cam_dir / "data.csv")
+            times = stamps_ns / 1e9
+            check_increasing(cam_dir / "data.csv", times, "image", lines)
+            paths = [cam_dir / "data" / name for name in names]
+            missing = [p for p in paths if not p.is_file()]
+            if missing:
+                raise DatasetError(cam_dir / "data.csv", f"{len(missing)} listed images are missing, first {missing[0].name}", line=lines[paths.index(missing[0])])
+            note = None
+        else:
+            paths = _stamped_images(cam_dir / "data")
+            if not paths:
+                raise DatasetError(cam_dir, "no data.csv and no images named by nanosecond timestamps in data/")
+            times = np.array([int(p.stem) for p in paths]) / 1e9
+            note = "no cam0/data.csv: frame times from the image names (nanoseconds, as EuRoC names them)"
         dataset = Dataset(root.name, self.name, root, read_camera(cam_dir / "sensor.yaml"), times, image_file_frames(times, paths))
+        if note:
+            dataset.notes.append(note)
         imu_csv = mav0 / "imu0" / "data.csv"
         if imu_csv.is_file():
             rows, _, _ = read_table(imu_csv, columns=7)

@@ -80,6 +80,7 @@ def nominal_camera(width: int, height: int, focal_35mm: float) -> CameraModel:
 class ExifPhotoReader:
     name = "exif-photos"
     description = "folder of JPEG photos with EXIF GPS (drone survey); GPS as ENU ground truth"
+    looks_for = "JPEG photos (here or in images/) whose first carries EXIF GPS"
 
     def detect(self, path: Path) -> bool:
         if not path.is_dir():

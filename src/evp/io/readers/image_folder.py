@@ -2,8 +2,8 @@
 
 Timestamps: ``images.txt`` / ``timestamps.txt`` as ``time path`` lines, or ``times.txt`` with one
 time per line for the sorted images. Calibration: ``camera.yaml``/``calibration.yaml`` (any format
-:func:`evp.calib.camera_files.read_camera` reads) or ``calib.txt`` (``fx fy cx cy k1 k2 p1 p2 k3``).
-Ground truth: ``groundtruth.txt`` (TUM).
+:func:`evp.calib.camera_files.read_camera` reads) or ``calib.txt`` (``fx fy cx cy k1 k2 p1 p2 k3``,
+or KITTI's ``P0: ...`` lines, read as camera 0's projection). Ground truth: ``groundtruth.txt`` (TUM).
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from pathlib import Path
 from evp.calib.camera_files import read_camera
 from evp.errors import CalibrationError, DatasetError
 from evp.io.dataset import Dataset, check_increasing, image_file_frames, image_size
+from evp.io.readers.kitti import is_kitti_calib, kitti_camera, read_kitti_projection
 from evp.io.text_tables import read_named_lines
 from evp.io.trajectory import read_timestamps, read_trajectory
 
@@ -32,6 +33,7 @@ def _calibration_file(path: Path) -> Path | None:
 class ImageFolderReader:
     name = "image-folder"
     description = "image folder + timestamps file (images.txt or times.txt) + calibration (camera.yaml or calib.txt)"
+    looks_for = "images (here or in images/) with " + ", ".join(NAMED_STAMP_FILES) + " or times.txt"
 
     def detect(self, path: Path) -> bool:
         if not path.is_dir():
@@ -59,10 +61,17 @@ class ImageFolderReader:
         if calibration is None:
             raise CalibrationError(path, f"no calibration file (one of {', '.join(CALIBRATION_FILES)})")
         width, height = image_size(paths[0])
-        camera = read_camera(calibration, width, height)
+        note = None
+        if is_kitti_calib(calibration):  # KITTI's P0: lines, not the plain numbers of RPG's calib.txt
+            camera = kitti_camera(read_kitti_projection(calibration, 0), width, height)
+            note = f"calibration: {calibration.name} in KITTI form, camera 0's projection P0 (rectified, no distortion)"
+        else:
+            camera = read_camera(calibration, width, height)
         if (camera.width, camera.height) != (width, height):
             raise CalibrationError(calibration, f"calibration is for {camera.width}x{camera.height} but images are {width}x{height}")
         dataset = Dataset(path.name, self.name, path, camera, stamps, image_file_frames(stamps, paths))
+        if note:
+            dataset.notes.append(note)
         if (path / "groundtruth.txt").is_file():
             dataset.ground_truth = read_trajectory(path / "groundtruth.txt")
             dataset.ground_truth_note = "groundtruth.txt (TUM)"

@@ -57,6 +57,7 @@ def _messages(path: Path, types: set[str], topic: str | None = None):
 class RosbagReader:
     name = "rosbag"
     description = "ROS 1 .bag, ROS 2 bag folder (metadata.yaml) or .mcap file (Image, CompressedImage, CameraInfo, Imu, NavSatFix, FluidPressure)"
+    looks_for = "a .bag or .mcap file, or a folder with metadata.yaml (ROS 2 bag)"
 
     def detect(self, path: Path) -> bool:
         if path.is_file():

@@ -28,6 +28,7 @@ def _trajectory_files(path: Path) -> list[Path]:
 class TrajectoryFilesReader:
     name = "trajectories"
     description = "trajectory file, or folder of them (TUM, KITTI, EuRoC CSV), without images"
+    looks_for = "trajectory files (TUM, KITTI, EuRoC CSV)"
 
     def detect(self, path: Path) -> bool:
         if path.is_file():

@@ -37,6 +37,7 @@ def tum_camera(path: Path, width: int, height: int) -> tuple[CameraModel, str]:
 class TumRgbdReader:
     name = "tum-rgbd"
     description = "TUM RGB-D sequence folder (rgb.txt, groundtruth.txt, accelerometer.txt)"
+    looks_for = "rgb.txt"
 
     def detect(self, path: Path) -> bool:
         return path.is_dir() and (path / "rgb.txt").is_file()

@@ -50,6 +50,7 @@ def _video_frames(video: Path, times: np.ndarray):
 class VideoReader:
     name = "video"
     description = "video file (+ <stem>.yaml calibration, <stem>.csv telemetry, <stem>.times.txt)"
+    looks_for = "a video file (" + ", ".join(sorted(VIDEO_SUFFIXES)) + ")"
 
     def detect(self, path: Path) -> bool:
         return path.is_file() and path.suffix.lower() in VIDEO_SUFFIXES

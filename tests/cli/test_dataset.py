@@ -9,6 +9,7 @@ import yaml
 from evp.io.registry import open_dataset
 from tests.cli.conftest import evp
 from tests.conftest import SAMPLE
+from tests.io import builders
 
 
 def test_info_on_bundled_sample():
@@ -40,3 +41,21 @@ def test_run_writes_the_settings_that_ran(tmp_path):
     # every tracked pose has ground truth, except the SLAM initialisation reference when that is
     # frame 0: the sample's ground truth starts 22 ms after it (more than half a frame period)
     assert metrics["matched_poses"] >= metrics["tracked_frames"] - 1
+
+
+@pytest.mark.parametrize("count", [1, 2])
+def test_run_on_a_sequence_too_short_to_initialise_ends_with_one_line(tmp_path, count):
+    root = builders.make_image_folder(tmp_path / "short", count=count)
+    result = evp("run", root, "--out", tmp_path / "out")
+    assert result.returncode == 3  # bad input data
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "too short or too still to initialise: no frame tracked" in lines[0], result.stderr
+    assert f"in {count} frame" in lines[0] and "Traceback" not in result.stderr
+
+
+def test_info_prints_the_readers_warnings(tmp_path):
+    root = builders.make_kitti(tmp_path / "kitti")
+    (root / "times.txt").unlink()
+    result = evp("info", root)
+    assert result.returncode == 0, result.stderr
+    assert "[kitti]" in result.stdout and "warning: no times.txt: frames stamped at KITTI's nominal 10 Hz" in result.stdout

@@ -1,18 +1,23 @@
-"""`evp align` end to end: the JSON contract on a simulated flight, and the real survey photos."""
+"""`evp align` end to end: the JSON contract on a simulated flight, the real survey photos, and
+surveys too short to hold validation pairs out."""
 
 import json
+import shutil
 import subprocess
 import sys
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
+from evp.io.registry import open_dataset
 from evp.io.trajectory import read_trajectory, write_trajectory
 from evp.sim.generate import generate
 from evp.sim.scenarios import SimOptions
 from evp.sim.sensors import GpsConfig
 from evp.types import Trajectory
 from tests.conftest import shared
+from tests.io.builders import write_geotagged_jpeg
 
 CONTRACT = ("mean", "max", "rmse", "q1", "q3", "iqr", "std", "n_evaluated")
 
@@ -90,3 +95,39 @@ def test_real_survey_photos_align_on_the_first_third(tmp_path):
     assert metrics["n_evaluated"] >= 30
     # the survey spans 150 x 180 m; a working pipeline stays within tens of metres of GPS at worst
     assert metrics["mean"] < 20.0 and metrics["max"] < 60.0
+
+
+def _align_short_survey(photos, tmp_path):
+    """evp align on a short photo survey, with its GPS track in another frame and scale as the
+    visual track, aligned on half of the fixes."""
+    gps = open_dataset(photos).ground_truth
+    R = Rotation.from_euler("z", 40, degrees=True).as_matrix()
+    write_trajectory(tmp_path / "visual.tum", Trajectory(gps.positions @ R * 0.1, gps.quats_xyzw, gps.timestamps))
+    result = evp("align", photos, "--trajectory", tmp_path / "visual.tum", "--align-fraction", 0.5, "--json", tmp_path / "m.json", "--out", tmp_path / "out")
+    assert result.returncode == 0, result.stderr
+    assert "not validated: too few pairs to hold some out" in result.stdout
+    assert "too few to hold 3 out for validation: fitted on all of them with the default settings" in result.stderr
+    metrics = json.loads((tmp_path / "m.json").read_text())
+    assert metrics["alignment"]["validation_rmse_m"] is None and metrics["alignment"]["model"] == "similarity"
+    assert any("not validated" in w for w in json.loads((tmp_path / "out" / "metrics.json").read_text())["warnings"])
+    return metrics
+
+
+def test_a_ten_photo_survey_aligns_on_all_its_pairs(tmp_path):
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for i in range(10):  # two flight lines, 5 s apart: 25 m north-south legs, 20 m between them
+        lat, lon = 41.5486 + (i % 5 if i < 5 else 9 - i) * 5e-5, -83.6986 + (i // 5) * 2.4e-4
+        write_geotagged_jpeg(photos / f"IMG_{i:04d}.jpg", 5 * i, lat, lon, 120.0 + i % 3)
+    metrics = _align_short_survey(photos, tmp_path)
+    assert metrics["n_evaluated"] == 4 and metrics["max"] < 0.5  # GPS stored to 1e-4 arc-seconds, altitude to 0.1 m
+
+
+def test_ten_real_survey_photos_align_on_all_their_pairs(tmp_path):
+    survey = shared("aerial_nadir_odm_toledo_fc350")
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for photo in sorted((survey / "images").glob("*.jpg"))[:10]:
+        shutil.copy(photo, photos / photo.name)
+    metrics = _align_short_survey(photos, tmp_path)
+    assert metrics["n_evaluated"] >= 3 and metrics["max"] < 1.0

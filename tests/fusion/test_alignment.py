@@ -155,3 +155,20 @@ def test_flat_pairs_do_not_get_an_unconstrained_affine(flight):
     )
     assert result.chosen["model"] == "similarity"
     assert any("affine fit" in w for w in result.warnings)
+
+
+def test_too_few_pairs_to_hold_out_are_all_fitted_with_default_settings(flight):
+    """A survey of ten photos: no pair can be spared for validation, so every pair is fitted with
+    the default settings and the result says it was not validated."""
+    times, truth = flight
+    photos = np.linspace(0, len(times) - 1, 10).astype(int)
+    R = Rotation.from_euler("zyx", [-70, 4, 2], degrees=True).as_matrix()
+    odom = (truth[photos] - [1.0, 2.0, 0.0]) @ R / 0.05  # enu = 0.05 R odom + [1, 2, 0]
+    settings = AlignmentSettings(max_clock_offset_s=0.0)
+    result = align_flight(_odometry(times[photos], odom), _gps(times[photos], truth[photos]), None, settings, align_fraction=0.5)
+    assert result.validation_rmse_m is None and result.pairs_used == 6
+    assert result.chosen["model"] == "similarity" and result.chosen["ransac_threshold_m"] == max(settings.ransac_thresholds_m)
+    assert any("too few to hold 3 out for validation" in w for w in result.warnings)
+    assert np.allclose(result.transform.matrix[:, :3], 0.05 * R, atol=1e-9)
+    errors, _ = horizontal_errors_after(result, _gps(times[photos], truth[photos]), max_gap_s=60.0)
+    assert len(errors) == 4 and errors.max() < 1e-6

@@ -28,9 +28,9 @@ def align(
     from pydantic import ValidationError
     from rich.progress import Progress
 
+    from evp.cli.dataset import echo_warnings
     from evp.config import AlignmentSettings, load_settings, write_settings
     from evp.eval.flight_report import flight_summary, write_flight_report
-    from evp.cli.dataset import echo_warnings
     from evp.fusion.flight import process_flight
     from evp.fusion.gps_input import AlignmentError
     from evp.io.registry import open_dataset

@@ -53,7 +53,9 @@ class EurocReader:
             paths = [cam_dir / "data" / name for name in names]
             missing = [p for p in paths if not p.is_file()]
             if missing:
-                raise DatasetError(cam_dir / "data.csv", f"{len(missing)} listed images are missing, first {missing[0].name}", line=lines[paths.index(missing[0])])
+                raise DatasetError(
+                    cam_dir / "data.csv", f"{len(missing)} listed images are missing, first {missing[0].name}", line=lines[paths.index(missing[0])]
+                )
             note = None
         else:
             paths = _stamped_images(cam_dir / "data")

@@ -105,7 +105,12 @@ class KittiReader:
     @staticmethod
     def _ground_truth(path: Path, dataset: Dataset, count: int, times: np.ndarray, t_cam0_cam: np.ndarray) -> None:
         """KITTI poses are camera 0's; another camera's follow through its rectified offset."""
-        for candidate in [path / "poses_kitti.txt", path / "poses.txt", path.parent / "poses" / f"{path.name}.txt", path.parent.parent / "poses" / f"{path.name}.txt"]:
+        for candidate in [
+            path / "poses_kitti.txt",
+            path / "poses.txt",
+            path.parent / "poses" / f"{path.name}.txt",
+            path.parent.parent / "poses" / f"{path.name}.txt",
+        ]:
             if candidate.is_file():
                 poses = read_trajectory(candidate, TrajectoryFormat.KITTI)
                 if len(poses) < count:

@@ -96,7 +96,7 @@ def echo_warnings(dataset) -> None:
 
 @app.command()
 def formats() -> None:
-    """List the dataset formats EVP reads, in detection order."""
+    """List the dataset formats EVP reads (names for --format; the trajectory-only reader last)."""
     from evp.io.registry import readers
 
     for reader in readers():

@@ -33,6 +33,15 @@ from evp.slam.projection import undistorted_bounds
 from evp.vision.matching import TH_LOW, best_unique_pairs, hamming_pairs, rotation_consistent
 from evp.vision.orb import OrbExtractor
 
+# A keyframe that tracked fewer map points than this share of its keypoints is starved (fast
+# forward motion: most of the view is new each keyframe, and the points near the focus of
+# expansion or far away gain parallax slowly). Its new points take ORB-SLAM's 1.1 degrees of
+# parallax instead of slam.new_point_min_parallax_deg: a thin map's need for points outweighs
+# their depth precision, while a well-tracked keyframe (hovering, the circle) keeps the stricter
+# limit that stopped the live circle's drift.
+STARVED_SHARE = 0.1
+STARVED_MIN_PARALLAX_DEG = 1.1
+
 
 @dataclass
 class NewKeyFrame:
@@ -54,6 +63,7 @@ class LocalMapper:
         self.adjuster = adjuster or InlineAdjustment()  # tracking may interrupt its local windows
         self.recent_points: list[int] = []
         self._min_parallax_cos = float(np.cos(np.radians(settings.new_point_min_parallax_deg)))
+        self._starved_min_parallax_cos = float(np.cos(np.radians(STARVED_MIN_PARALLAX_DEG)))
         self.keyframes_waiting: Callable[[], bool] = lambda: False
         self.step_done: Callable[[], None] = lambda: None
         self.loop_closer = LoopCloser(slam_map, extractor, settings) if settings.loop_closing else None
@@ -157,13 +167,15 @@ class LocalMapper:
         sigma2 = self.extractor.level_sigma2
         scale = self.extractor.settings.scale_factor
         fx = self.K[0, 0]
+        starved = (kf.point_ids >= 0).sum() < STARVED_SHARE * len(kf.point_ids)
+        min_parallax_cos = self._starved_min_parallax_cos if starved else self._min_parallax_cos
         for neighbour_id in kf.best_covisible(s.covisible_keyframes):
             with self._locked():
                 nb = self.map.keyframes.get(neighbour_id)
                 if nb is not None and self._in_map(kf):
-                    self._triangulate_with(kf, nb, sigma2, scale, fx)
+                    self._triangulate_with(kf, nb, sigma2, scale, fx, min_parallax_cos)
 
-    def _triangulate_with(self, kf: KeyFrame, nb: KeyFrame, sigma2: np.ndarray, scale: float, fx: float) -> None:
+    def _triangulate_with(self, kf: KeyFrame, nb: KeyFrame, sigma2: np.ndarray, scale: float, fx: float, min_parallax_cos: float) -> None:
         """New points from unmatched features of two keyframes (epipolar band, descriptor ratio,
         rotation consistency, parallax, reprojection and scale checks)."""
         baseline = np.linalg.norm(kf.centre - nb.centre)
@@ -183,7 +195,7 @@ class LocalMapper:
         ia, ib = free_a[rows[keep]], free_b[cols[keep]]
         points = triangulate(kf.T_cw, nb.T_cw, fa.normalised[ia], fb.normalised[ib])
         good, _ = check_points(
-            points, kf.T_cw, nb.T_cw, fa.normalised[ia], fb.normalised[ib], fx, sigma2[fa.octave[ia]], sigma2[fb.octave[ib]], self._min_parallax_cos
+            points, kf.T_cw, nb.T_cw, fa.normalised[ia], fb.normalised[ib], fx, sigma2[fa.octave[ia]], sigma2[fb.octave[ib]], min_parallax_cos
         )
         # scale consistency: distance ratio agrees with the octave ratio
         da = np.linalg.norm(points - kf.centre, axis=1)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter, deque
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from itertools import chain
 
 import cv2
@@ -39,6 +39,15 @@ from evp.vision.orb import Features, OrbExtractor
 from evp.vision.vocabulary import BowVector, Vocabulary
 
 RELOCALISATION_CANDIDATES = 5  # keyframes verified by PnP per lost frame, best place first
+# Parallax enough to start from when the initial reference is about to be replaced (ORB-SLAM's
+# own minimum): its matches are dying faster than the parallax grows, as at a low frame rate or
+# a fast forward motion, and waiting for slam.init_min_parallax_deg would mean never starting.
+# The map must still be as well determined as a nominal start's (init_min_parallax_deg over
+# init_min_triangulated points): a point's depth error goes as 1 / parallax, the map's shape and
+# scale error as that over the square root of the points, so fewer degrees need more points.
+# A hand-held start turning on the spot (MH01) loses matches fast too; its 1.7-degree, 82-point
+# candidate failed within 10 frames, where KITTI at 5 Hz starts on 2.4 degrees and 181 points.
+EXPIRING_MIN_PARALLAX_DEG = 1.0
 
 
 @dataclass
@@ -53,10 +62,29 @@ class _TrackedFrame:
 
 @dataclass
 class _InitReference:
-    """The frame initialisation matches later frames against."""
+    """The frame initialisation matches later frames against. Each of its keypoints is searched
+    for around where it was last matched (ORB-SLAM's mvbPrevMatched), so the window follows a
+    point as its flow grows: with a window fixed at the reference position, the near points of a
+    fast forward motion leave it within a few frames and only the distant, parallax-poor ones stay."""
 
     features: Features
     record: int  # index of its record in SlamSystem.records
+    last_seen_px: np.ndarray = field(init=False)
+    last_matches: int = field(init=False)  # matched at the last try (its keypoint count at first)
+
+    def __post_init__(self) -> None:
+        self.last_seen_px = self.features.un_px.copy()
+        self.last_matches = len(self.features)
+
+    def expiring(self, matches: int, needed: int) -> bool:
+        """Whether the matches, falling at the rate of the last step, will be too few at the next
+        frame: the reference is about to be replaced, and the parallax it has now is the most it
+        will reach. Slow starts (hand-held, hovering, drones climbing) keep most matches from
+        frame to frame and wait for the full parallax; a fast forward motion or a low frame rate
+        loses most of them at each step."""
+        expiring = matches * matches < needed * self.last_matches
+        self.last_matches = matches
+        return expiring
 
 
 @dataclass
@@ -256,23 +284,27 @@ class SlamSystem(Estimator):
                 self._init_reference = self._reference_here(features)
             return None
         ref = reference.features
-        rows, cols = match_in_window(ref.descriptors, ref.un_px, features.descriptors, features.un_px, s.init_search_radius_px, TH_LOW, 0.9)
+        rows, cols = match_in_window(ref.descriptors, reference.last_seen_px, features.descriptors, features.un_px, s.init_search_radius_px, TH_LOW, 0.9)
         keep = rotation_consistent(ref.angle[rows], features.angle[cols])
         rows, cols = rows[keep], cols[keep]
+        reference.last_seen_px[rows] = features.un_px[cols]
         if len(rows) < s.init_min_matches:
             self._init_reference = self._reference_here(features)
             return None
+        expiring = reference.expiring(len(rows), s.init_min_matches)
         result = initial_two_view(
             ref.normalised[rows],
             features.normalised[cols],
             self.camera.fx,
-            s.init_min_parallax_deg,
+            min(s.init_min_parallax_deg, EXPIRING_MIN_PARALLAX_DEG) if expiring else s.init_min_parallax_deg,
             s.init_min_triangulated,
             s.homography_ratio,
             parallel=self.scheduler.parallel,
         )
         if result is None or result.good.sum() < s.init_min_triangulated:
             return None
+        if result.parallax_deg * np.sqrt(result.good.sum()) < s.init_min_parallax_deg * np.sqrt(s.init_min_triangulated):
+            return None  # an expiring reference's lower parallax must be made up by more points
         kf0 = self.map.add_keyframe(self.records[reference.record].timestamp, np.eye(4), ref, self._bow(ref))
         kf1 = self.map.add_keyframe(frame.timestamp, result.T21, features, self._bow(features))
         for a, b, position in zip(rows[result.good], cols[result.good], result.points[result.good], strict=True):
@@ -337,6 +369,9 @@ class SlamSystem(Estimator):
         T_cw = None
         if self._velocity is not None:
             T_cw = self._track_motion_model(timestamp, features, matched)
+            if T_cw is None:
+                matched[:] = -1
+                T_cw = self._track_prediction_in_local_map(timestamp, features, matched)
         if T_cw is None:
             matched[:] = -1
             T_cw = self._track_reference_keyframe(features, matched)
@@ -403,19 +438,10 @@ class SlamSystem(Estimator):
         front = pc[:, 2] > 0
         with np.errstate(divide="ignore", invalid="ignore"):
             uv = np.c_[self.K[0, 0] * pc[:, 0] / pc[:, 2] + self.K[0, 2], self.K[1, 1] * pc[:, 1] / pc[:, 2] + self.K[1, 2]]
+        octave = last.features.octave[rows_last]
         for widen in (1.0, 2.0):
-            radius = widen * self.settings.motion_search_radius_px * self.extractor.scale_factors[last.features.octave[rows_last]]
-            a, b = match_in_window(
-                descriptors[front],
-                uv[front],
-                features.descriptors,
-                features.un_px,
-                radius[front],
-                TH_HIGH,
-                0.9,
-                last.features.octave[rows_last][front],
-                features.octave,
-            )
+            radius = widen * self.settings.motion_search_radius_px * self.extractor.scale_factors[octave]
+            a, b = match_in_window(descriptors[front], uv[front], features.descriptors, features.un_px, radius[front], TH_HIGH, 0.9, octave[front], features.octave)
             keep = rotation_consistent(last.features.angle[rows_last][front][a], features.angle[b])
             a, b = a[keep], b[keep]
             if len(a) >= 20:
@@ -484,10 +510,29 @@ class SlamSystem(Estimator):
         wanted[matched[matched >= 0]] = False
         return np.flatnonzero(wanted)
 
+    def _track_prediction_in_local_map(self, timestamp: float, features: Features, matched: np.ndarray) -> np.ndarray | None:
+        """The motion model found too few of the last frame's points (the step was long: fast
+        forward motion, a low frame rate, dropped frames, where most points change scale or leave
+        the view between frames), but the prediction is still the best pose there is: the local
+        map around the last frame, thousands of points seen by several keyframes, is searched at
+        the predicted pose with the motion model's window. ORB-SLAM goes from the motion model to
+        the reference keyframe's bag of words, which a step like that defeats as well."""
+        T_pred = self._predicted_motion(timestamp - self._last.timestamp) @ self._last.T_cw
+        local = self._local_keyframes(self._last.point_ids)
+        T_cw, inliers = self._search_local_map(features, matched, T_pred, local, self.settings.motion_search_radius_px)
+        return T_cw if inliers >= self.settings.min_tracked_inliers else None
+
     def _track_local_map(self, features: Features, matched: np.ndarray, T_cw: np.ndarray) -> tuple[np.ndarray, int, int | None]:
         """``(T_cw, inliers, the keyframe sharing most points with the frame)`` (ORB-SLAM's
         reference keyframe; None without matches)."""
         local = self._local_keyframes(matched)
+        T_cw, inliers = self._search_local_map(features, matched, T_cw, local, self.settings.local_map_search_radius_px)
+        return T_cw, inliers, (local[0] if local else None)
+
+    def _search_local_map(self, features: Features, matched: np.ndarray, T_cw: np.ndarray, local: list[int], radius_px: float) -> tuple[np.ndarray, int]:
+        """Match the local keyframes' points the frame has not matched yet around their
+        projection at ``T_cw`` (``radius_px`` at the finest level, 2.5/4 of it for points seen
+        head-on), then optimise the pose on all matches."""
         ids = self._unmatched_local_points(local, matched)
         projection = project_points(self.map, ids, T_cw, self.extractor, self.K, self.bounds)
         if projection is not None:
@@ -496,12 +541,7 @@ class SlamSystem(Estimator):
                 self.map.points[point_id].visible += 1
             free = np.flatnonzero(matched < 0)
             descriptors = self.map.store.descriptor[candidates]
-            radius = (
-                np.where(projection.view_cos > 0.998, 2.5, 4.0)
-                * self.settings.local_map_search_radius_px
-                / 4.0
-                * self.extractor.scale_factors[projection.level]
-            )
+            radius = np.where(projection.view_cos > 0.998, 2.5, 4.0) * radius_px / 4.0 * self.extractor.scale_factors[projection.level]
             a, b = match_in_window(
                 descriptors, projection.uv, features.descriptors[free], features.un_px[free], radius, TH_HIGH, 0.8, projection.level, features.octave[free]
             )
@@ -511,7 +551,7 @@ class SlamSystem(Estimator):
             point = self.map.points.get(int(point_id))
             if point is not None:
                 point.found += 1
-        return T_cw, inliers, (local[0] if local else None)
+        return T_cw, inliers
 
     # --- keyframes --------------------------------------------------------------------------
 

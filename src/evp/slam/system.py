@@ -62,18 +62,13 @@ class _TrackedFrame:
 
 @dataclass
 class _InitReference:
-    """The frame initialisation matches later frames against. Each of its keypoints is searched
-    for around where it was last matched (ORB-SLAM's mvbPrevMatched), so the window follows a
-    point as its flow grows: with a window fixed at the reference position, the near points of a
-    fast forward motion leave it within a few frames and only the distant, parallax-poor ones stay."""
+    """The frame initialisation matches later frames against."""
 
     features: Features
     record: int  # index of its record in SlamSystem.records
-    last_seen_px: np.ndarray = field(init=False)
     last_matches: int = field(init=False)  # matched at the last try (its keypoint count at first)
 
     def __post_init__(self) -> None:
-        self.last_seen_px = self.features.un_px.copy()
         self.last_matches = len(self.features)
 
     def expiring(self, matches: int, needed: int) -> bool:
@@ -284,10 +279,9 @@ class SlamSystem(Estimator):
                 self._init_reference = self._reference_here(features)
             return None
         ref = reference.features
-        rows, cols = match_in_window(ref.descriptors, reference.last_seen_px, features.descriptors, features.un_px, s.init_search_radius_px, TH_LOW, 0.9)
+        rows, cols = match_in_window(ref.descriptors, ref.un_px, features.descriptors, features.un_px, s.init_search_radius_px, TH_LOW, 0.9)
         keep = rotation_consistent(ref.angle[rows], features.angle[cols])
         rows, cols = rows[keep], cols[keep]
-        reference.last_seen_px[rows] = features.un_px[cols]
         if len(rows) < s.init_min_matches:
             self._init_reference = self._reference_here(features)
             return None

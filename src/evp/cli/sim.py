@@ -51,7 +51,7 @@ def sim(
     duration: float | None = typer.Option(None, "--duration", help="Seconds (default: the scenario's)."),
     seed: int | None = typer.Option(None, "--seed", help="Random seed (noise, textures, paths)."),
     fps: float | None = typer.Option(None, "--fps", help="Camera frame rate."),
-    camera: str | None = typer.Option(None, "--camera", help="nexus5x_640x380, global_752x480 or phone_1280x720."),
+    camera: str | None = typer.Option(None, "--camera", help="nexus5x_640x380, global_752x480, phone_1280x720 or car_640x194."),
     texture: str | None = typer.Option(None, "--texture", help="rich, low, floor, wall, or image file(s) separated by commas."),
     altitude: float | None = typer.Option(None, "--altitude", help="Flight altitude / camera height (m)."),
     speed: float | None = typer.Option(None, "--speed", help="Cruise speed (m/s)."),

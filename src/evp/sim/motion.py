@@ -40,14 +40,18 @@ class MotionState:
 
 
 class SplineMotion:
-    """Motion through sampled positions and attitudes, differentiable twice."""
+    """Motion through sampled positions and attitudes, differentiable twice.
 
-    def __init__(self, times: np.ndarray, positions: np.ndarray, rotations: Rotation):
+    ``ends``: "clamped" starts and stops at rest (a take-off, a landing); "natural" passes through
+    the first and last samples at speed, without acceleration there (a car already driving).
+    """
+
+    def __init__(self, times: np.ndarray, positions: np.ndarray, rotations: Rotation, ends: str = "clamped"):
         if len(times) < 4 or np.any(np.diff(times) <= 0):
             raise ValueError("a motion needs at least 4 samples with increasing times")
         self.start = float(times[0])
         self.end = float(times[-1])
-        self._position = CubicSpline(times, positions, axis=0, bc_type="clamped")
+        self._position = CubicSpline(times, positions, axis=0, bc_type=ends)
         self._rotation = RotationSpline(times, rotations)
 
     @property
@@ -84,6 +88,23 @@ def multirotor_attitude(acceleration: np.ndarray, yaw: np.ndarray, max_tilt_rad:
     y_axis /= np.linalg.norm(y_axis, axis=1, keepdims=True)
     x_axis = np.cross(y_axis, z_axis)
     return Rotation.from_matrix(np.stack([x_axis, y_axis, z_axis], axis=2))
+
+
+ROLL_PER_LATERAL_ACCEL = np.radians(0.4)  # rad per m/s^2: a car body leans out ~4 degrees per g
+PITCH_PER_LONGITUDINAL_ACCEL = np.radians(0.15)  # rad per m/s^2: dives ~1.5 degrees per g of braking
+
+
+def car_attitude(acceleration: np.ndarray, yaw: np.ndarray, road_shake: np.ndarray) -> Rotation:
+    """Attitude of a car heading ``yaw`` on a level road: its body leans out of a turn and dives
+    when braking (suspension), plus ``road_shake`` (N, 2) pitch and roll from the surface (rad);
+    nothing like a multirotor's tilt."""
+    forward = np.column_stack([np.cos(yaw), np.sin(yaw)])
+    left = np.column_stack([-np.sin(yaw), np.cos(yaw)])
+    longitudinal = np.einsum("ij,ij->i", acceleration[:, :2], forward)
+    lateral = np.einsum("ij,ij->i", acceleration[:, :2], left)
+    pitch = -PITCH_PER_LONGITUDINAL_ACCEL * longitudinal + road_shake[:, 0]  # positive pitch: nose down
+    roll = ROLL_PER_LATERAL_ACCEL * lateral + road_shake[:, 1]  # positive roll: right side down (out of a left turn)
+    return Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll]))
 
 
 def smooth_path(times: np.ndarray, waypoints_t: np.ndarray, waypoints: np.ndarray) -> np.ndarray:

@@ -16,8 +16,8 @@ from scipy.spatial.transform import Rotation
 
 from evp.calib.profiles import load_profile
 from evp.errors import UsageError
-from evp.sim import paths
-from evp.sim.motion import SplineMotion, heading_from_velocity, multirotor_attitude
+from evp.sim import paths, road
+from evp.sim.motion import SplineMotion, car_attitude, heading_from_velocity, multirotor_attitude
 from evp.sim.sensors import BaroConfig, GpsConfig, ImuConfig, RangeConfig, WheelConfig, WifiConfig
 from evp.sim.textures import image_texture, marker_field_texture, procedural_texture
 from evp.sim.world import Scene, TexturedQuad, box_quads
@@ -26,7 +26,12 @@ from evp.types import CameraModel
 # camera optical axes (columns x, y, z) in the body frame (x forward, y left, z up)
 DOWNWARD = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # image top = forward
 FORWARD = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-CAMERA_PRESETS = {"nexus5x_640x380": "nexus5x_640x380", "global_752x480": "global_shutter_752x480", "phone_1280x720": "phone_1280x720"}
+CAMERA_PRESETS = {
+    "nexus5x_640x380": "nexus5x_640x380",
+    "global_752x480": "global_shutter_752x480",
+    "phone_1280x720": "phone_1280x720",
+    "car_640x194": "car_640x194",
+}
 
 
 class SimOptions(BaseModel):
@@ -359,6 +364,44 @@ def hover_drift(options: SimOptions) -> Scenario:
     )
 
 
+MAX_LATERAL_ACCEL_M_S2 = 3.0  # a comfortable curve for a driver: the road's tightest radius is v^2 / this
+
+
+def road_drive(options: SimOptions) -> Scenario:
+    """A car phone on the windscreen (camera forward, 1.5 m up) driving the right lane of a curving
+    town road at 20 m/s (10-30), past buildings, trees and parked cars, with hills far away; the
+    speed wanders by 10 %. KITTI-like camera (car_640x194); IMU, GPS and wheel speed (OBD)."""
+    rng = np.random.default_rng(options.seed)
+    camera = _camera(options, "car_640x194")
+    speed = options.speed_m_s or 20.0
+    duration = options.duration_s or 60.0
+    height = options.altitude_m or 1.5
+    times = np.arange(0.0, duration + 1e-9, paths.SAMPLE_DT)
+    pace = speed * (1.0 + 0.1 * np.sin(2 * np.pi * times / 25.0 + rng.uniform(0, 2 * np.pi)))
+    start = 30.0  # metres of road behind the start: the first view is of road, not of its end
+    travelled = start + np.concatenate([[0.0], np.cumsum((pace[1:] + pace[:-1]) / 2) * paths.SAMPLE_DT])
+    line = road.centreline(rng, travelled[-1] + 300.0, max(100.0, speed**2 / MAX_LATERAL_ACCEL_M_S2))
+    xy, yaw = line.at(travelled, -road.LANE_WIDTH_M / 2)
+    positions = np.column_stack([xy, np.full(len(times), height)])
+    acceleration = SplineMotion(times, positions, Rotation.identity(len(times)), ends="natural").state(times).acceleration
+    shake = paths.smooth(rng.normal(0.0, np.radians(0.3), (len(times), 2)), 0.15)  # road surface, ~0.1 degree
+    motion = SplineMotion(times, positions, car_attitude(acceleration, yaw, shake), ends="natural")
+    quads = road.road_surface(line, camera, height, options.seed) + road.roadside(line, camera, rng, options.seed) + road.far_away(line, rng, options.seed)
+    return Scenario(
+        "road-drive",
+        camera,
+        FORWARD,
+        np.zeros(3),
+        motion,
+        Scene(quads, background=215),
+        (49.0069, 8.4037, 115.0),
+        ("imu", "gps", "wheel"),
+        notes=[
+            f"town road, {line.length:.0f} m with curves of radius >= {max(100.0, speed**2 / MAX_LATERAL_ACCEL_M_S2):.0f} m, {speed:.1f} m/s, camera {height} m up"
+        ],
+    )
+
+
 SCENARIOS: dict[str, Callable[[SimOptions], Scenario]] = {
     "drone-flight": drone_flight,
     "drone-field-loops": drone_field_loops,
@@ -367,6 +410,7 @@ SCENARIOS: dict[str, Callable[[SimOptions], Scenario]] = {
     "wheel-robot-room": wheel_robot_room,
     "marker-field": marker_field,
     "hover-drift": hover_drift,
+    "road-drive": road_drive,
 }
 
 

@@ -124,3 +124,95 @@ def marker_field_texture(texels_per_marker: int = 24) -> tuple[np.ndarray, float
             texture[y0 : y0 + texels_per_marker, x0 : x0 + texels_per_marker] = cv2.aruco.generateImageMarker(dictionary, marker_id, texels_per_marker)
             centres[marker_id] = np.array([(x0 + texels_per_marker / 2) * mpt, (y0 + texels_per_marker / 2) * mpt])
     return texture, mpt, centres
+
+
+# --- what lines a road: asphalt, facades, parked cars, foliage, bark and distant hills ---------------------
+# Upright surfaces are drawn as images (row 0 at the top); the road module flips them onto quads whose
+# v axis points up.
+
+
+def _shape(size_m: tuple[float, float], metres_per_texel: float) -> tuple[int, int]:
+    return max(8, int(round(size_m[1] / metres_per_texel))), max(8, int(round(size_m[0] / metres_per_texel)))
+
+
+def asphalt_texture(size_m: tuple[float, float], metres_per_texel: float, seed: int) -> np.ndarray:
+    """Dark asphalt: grain at the texel scale, mottling, tar patches and cracks (no markings)."""
+    rng = np.random.default_rng(seed)
+    shape = _shape(size_m, metres_per_texel)
+    base = 85 + _octaves(rng, shape, metres_per_texel, [6.0, 1.0, 0.2], [12, 10, 8]) + rng.uniform(-12, 12, shape).astype(np.float32)
+    for _ in range(int(size_m[0] * size_m[1] / 25) + 1):  # tar patches and oil stains
+        centre = (int(rng.integers(0, shape[1])), int(rng.integers(0, shape[0])))
+        axes = (int(rng.uniform(0.2, 1.5) / metres_per_texel) + 1, int(rng.uniform(0.1, 0.8) / metres_per_texel) + 1)
+        cv2.ellipse(base, centre, axes, float(rng.uniform(0, 180)), 0, 360, float(rng.uniform(45, 75)), -1)
+    for _ in range(int(size_m[0] * size_m[1] / 40) + 1):  # sealed cracks
+        points = np.cumsum(rng.normal(0, 0.3 / metres_per_texel, (6, 2)), axis=0) + [rng.integers(0, shape[1]), rng.integers(0, shape[0])]
+        cv2.polylines(base, [points.astype(np.int32)], False, float(rng.uniform(40, 60)), max(1, int(0.02 / metres_per_texel)))
+    return np.clip(base, 0, 255).astype(np.uint8)
+
+
+def facade_texture(size_m: tuple[float, float], metres_per_texel: float, seed: int) -> np.ndarray:
+    """A building front: plaster, a shop or door band on the ground floor, then floors of windows
+    (3.2 m apart) each with its own pane brightness and curtain."""
+    rng = np.random.default_rng(seed)
+    shape = _shape(size_m, metres_per_texel)
+    base = rng.uniform(120, 200) + _octaves(rng, shape, metres_per_texel, [8.0, 1.0, 0.1], [10, 6, 6])
+    px = 1.0 / metres_per_texel
+    floor_m, bay_m = 3.2, rng.uniform(2.4, 3.6)
+    window_w, window_h = rng.uniform(0.9, 1.5), rng.uniform(1.2, 1.7)
+    for k in range(int(size_m[1] / floor_m)):  # rows count from the bottom of the facade
+        bottom = shape[0] - int(k * floor_m * px)
+        if k == 0:  # shop windows and doors
+            for x in np.arange(rng.uniform(0.3, 1.5), size_m[0] - 1.0, rng.uniform(3.0, 6.0)):
+                w = rng.uniform(1.0, 3.0)
+                top = bottom - int(rng.uniform(2.0, 2.6) * px)
+                base[top : bottom - int(0.1 * px), int(x * px) : int((x + w) * px)] = rng.uniform(20, 110)
+            continue
+        sill = bottom - int(0.9 * px)
+        for x in np.arange(bay_m / 2 - window_w / 2, size_m[0] - window_w, bay_m):
+            c0, c1, r0 = int(x * px), int((x + window_w) * px), sill - int(window_h * px)
+            base[r0 - 2 : sill + 2, c0 - 2 : c1 + 2] = 235  # frame
+            base[r0:sill, c0:c1] = rng.uniform(25, 120)  # pane
+            if rng.uniform() < 0.5:  # a curtain on one side
+                split = c0 + int(rng.uniform(0.2, 0.6) * (c1 - c0))
+                base[r0:sill, c0:split] = rng.uniform(140, 220)
+    return np.clip(base, 0, 255).astype(np.uint8)
+
+
+def vehicle_texture(size_m: tuple[float, float], metres_per_texel: float, seed: int, side: bool) -> np.ndarray:
+    """A parked car seen from the side (``side``: wheels and two windows) or from behind (rear
+    window, lights and number plate); the body a random paint shade."""
+    rng = np.random.default_rng(seed)
+    shape = _shape(size_m, metres_per_texel)
+    base = np.full(shape, rng.uniform(40, 220), np.float32) + _octaves(rng, shape, metres_per_texel, [1.0, 0.1], [6, 4])
+    height, width = shape
+    base[int(0.1 * height) : int(0.42 * height), int(0.12 * width) : int(0.88 * width)] = rng.uniform(20, 60)  # glass
+    if side:
+        base[int(0.1 * height) : int(0.42 * height), int(0.49 * width) : int(0.52 * width)] = 30  # door pillar
+        for centre in (0.18, 0.8):
+            cv2.circle(base, (int(centre * width), int(0.82 * height)), int(0.2 * height), 15, -1)
+            cv2.circle(base, (int(centre * width), int(0.82 * height)), int(0.1 * height), 150, -1)
+    else:
+        for left in (0.05, 0.8):
+            base[int(0.5 * height) : int(0.62 * height), int(left * width) : int((left + 0.15) * width)] = 70  # lights
+        base[int(0.62 * height) : int(0.72 * height), int(0.38 * width) : int(0.62 * width)] = 240  # plate
+        base[int(0.85 * height) :] = 20  # bumper shadow
+    return np.clip(base, 0, 255).astype(np.uint8)
+
+
+def foliage_texture(size_m: tuple[float, float], metres_per_texel: float, seed: int, bark: bool = False) -> np.ndarray:
+    """Leaves (blotches of light and shade from 5 cm to 1 m) or, with ``bark``, a dark trunk with
+    vertical furrows."""
+    rng = np.random.default_rng(seed)
+    shape = _shape(size_m, metres_per_texel)
+    if bark:
+        furrows = _smooth_noise(rng, (max(2, shape[0] // 8), shape[1]), max(1.5, 0.05 / metres_per_texel))
+        return np.clip(60 + 25 * cv2.resize(furrows, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR), 0, 255).astype(np.uint8)
+    return np.clip(95 + _octaves(rng, shape, metres_per_texel, [1.0, 0.3, 0.08], [30, 30, 25]), 0, 255).astype(np.uint8)
+
+
+def hills_texture(size_m: tuple[float, float], metres_per_texel: float, seed: int) -> np.ndarray:
+    """Distant wooded hills and town: large soft shapes, darker towards the foot."""
+    rng = np.random.default_rng(seed)
+    shape = _shape(size_m, metres_per_texel)
+    base = 120 + _octaves(rng, shape, metres_per_texel, [60.0, 15.0, 4.0], [30, 25, 20]) - np.linspace(0, 30, shape[0], dtype=np.float32)[::-1, None]
+    return np.clip(base, 0, 255).astype(np.uint8)

@@ -31,9 +31,10 @@ def undistorted_bounds(extractor: OrbExtractor) -> tuple[float, float, float, fl
     edge = np.linspace(0, 1, 21)
     border = np.r_[np.c_[edge * w, 0 * edge], np.c_[edge * w, 0 * edge + h], np.c_[0 * edge, edge * h], np.c_[0 * edge + w, edge * h]]
     un = camera.undistort_pixels(border)
+    beyond = np.isnan(un)  # fisheye border rays 90 degrees or more off the axis: the cone bounds them
     reach = np.tan(np.radians(MAX_RAY_ANGLE_DEG)) * np.array([camera.fx, camera.fy])
-    low = np.maximum(np.nanmin(un, axis=0), [camera.cx, camera.cy] - reach)
-    high = np.minimum(np.nanmax(un, axis=0), [camera.cx, camera.cy] + reach)
+    low = np.maximum(np.where(beyond, -np.inf, un).min(axis=0), [camera.cx, camera.cy] - reach)
+    high = np.minimum(np.where(beyond, np.inf, un).max(axis=0), [camera.cx, camera.cy] + reach)
     return float(low[0]), float(low[1]), float(high[0]), float(high[1])
 
 

@@ -170,11 +170,29 @@ class Trajectory:
         return Trajectory(self.positions, self.quats_xyzw, stamps, self.name)
 
 
+class LensModel(enum.Enum):
+    """How a camera maps rays to pixels.
+
+    ``RADTAN``: pinhole with OpenCV's radial-tangential distortion (k1 k2 p1 p2 k3), and k4 k5 k6 in
+    the denominator of the radial factor for its 8-coefficient rational model (ROS
+    ``rational_polynomial``). ``EQUIDISTANT``: the Kannala-Brandt fisheye of OpenCV's cv2.fisheye,
+    Kalibr's ``equidistant`` and ORB-SLAM3's ``KannalaBrandt8``: a ray at angle theta from the
+    optical axis lands at radius theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8) on
+    the normalised image plane, which reaches 90 degrees and beyond where a pinhole cannot.
+    """
+
+    RADTAN = "radtan"
+    EQUIDISTANT = "equidistant"
+
+
 @dataclass(frozen=True)
 class CameraModel:
-    """Pinhole camera with OpenCV radial-tangential distortion (k1, k2, p1, p2, k3).
+    """A camera's intrinsics and lens model (:class:`LensModel`): k1 k2 p1 p2 k3 k4 k5 k6 for
+    ``RADTAN``, k1 k2 k3 k4 for ``EQUIDISTANT`` (whose p1 p2 k5 k6 stay 0).
 
-    Pixel coordinates follow OpenCV: the centre of the top-left pixel is (0, 0).
+    Pixel coordinates follow OpenCV: the centre of the top-left pixel is (0, 0). "Normalised"
+    coordinates are those of an ideal pinhole on the z = 1 plane, what the SLAM geometry uses; a
+    fisheye ray at 90 degrees or more from the axis has none (NaN), its :meth:`bearings` do.
     """
 
     width: int
@@ -189,15 +207,22 @@ class CameraModel:
     p2: float = 0.0
     k3: float = 0.0
     name: str = ""
+    k4: float = 0.0
+    k5: float = 0.0
+    k6: float = 0.0
+    lens: LensModel = LensModel.RADTAN
 
     def __post_init__(self) -> None:
         if self.width <= 0 or self.height <= 0:
             raise ValueError(f"camera resolution must be positive, got {self.width}x{self.height}")
         if not (self.fx > 0 and self.fy > 0):
             raise ValueError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
-        values = (self.fx, self.fy, self.cx, self.cy, self.k1, self.k2, self.p1, self.p2, self.k3)
+        values = (self.fx, self.fy, self.cx, self.cy, self.k1, self.k2, self.p1, self.p2, self.k3, self.k4, self.k5, self.k6)
         if not all(np.isfinite(values)):
             raise ValueError("camera parameters must be finite numbers")
+        object.__setattr__(self, "lens", LensModel(self.lens))  # also from its name ("equidistant")
+        if self.lens is LensModel.EQUIDISTANT and any((self.p1, self.p2, self.k5, self.k6)):
+            raise ValueError("an equidistant (fisheye) lens has coefficients k1..k4 only")
 
     @property
     def K(self) -> np.ndarray:
@@ -205,46 +230,103 @@ class CameraModel:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
     @property
+    def coefficients(self) -> dict[str, float]:
+        """The lens model's coefficients by name, in OpenCV's order: k1 k2 p1 p2 k3 (and k4 k5 k6
+        when the rational model is in use) for ``RADTAN``, k1 k2 k3 k4 for ``EQUIDISTANT``."""
+        if self.lens is LensModel.EQUIDISTANT:
+            names = ("k1", "k2", "k3", "k4")
+        elif self._rational:
+            names = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
+        else:
+            names = ("k1", "k2", "p1", "p2", "k3")
+        return {name: getattr(self, name) for name in names}
+
+    @property
     def distortion(self) -> np.ndarray:
-        """OpenCV distortion vector (k1, k2, p1, p2, k3)."""
-        return np.array([self.k1, self.k2, self.p1, self.p2, self.k3])
+        """The coefficient vector OpenCV takes with :attr:`K` for this lens: 5 (or 8, rational)
+        for its pinhole functions when ``RADTAN``, 4 for its cv2.fisheye functions when
+        ``EQUIDISTANT``."""
+        return np.array(list(self.coefficients.values()))
+
+    @property
+    def _rational(self) -> bool:
+        return bool(self.k4 or self.k5 or self.k6)
 
     @property
     def has_distortion(self) -> bool:
-        return bool(np.any(self.distortion != 0.0))
+        """Whether pixels differ from an ideal pinhole's (always for a fisheye)."""
+        return self.lens is LensModel.EQUIDISTANT or bool(np.any(self.distortion != 0.0))
+
+    def _radial(self, r2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Radtan's radial factor and its derivative with respect to r^2."""
+        radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        d_radial = self.k1 + r2 * (2.0 * self.k2 + 3.0 * self.k3 * r2)
+        if self._rational:
+            denominator = 1.0 + r2 * (self.k4 + r2 * (self.k5 + r2 * self.k6))
+            d_denominator = self.k4 + r2 * (2.0 * self.k5 + 3.0 * self.k6 * r2)
+            d_radial = (d_radial * denominator - radial * d_denominator) / denominator**2
+            radial = radial / denominator
+        return radial, d_radial
+
+    def _theta_d(self, theta: np.ndarray) -> np.ndarray:
+        """Equidistant: distorted radius on the normalised plane of a ray theta from the axis."""
+        t2 = theta * theta
+        return theta * (1.0 + t2 * (self.k1 + t2 * (self.k2 + t2 * (self.k3 + t2 * self.k4))))
 
     def distort_normalized(self, xy: np.ndarray) -> np.ndarray:
         """Apply the lens model to (N, 2) normalised image coordinates (z = 1 plane)."""
+        if self.lens is LensModel.EQUIDISTANT:
+            return self._distort_bearings(np.column_stack([xy, np.ones(len(xy))]))
         x, y = xy[:, 0], xy[:, 1]
         r2 = x * x + y * y
-        radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        radial = self._radial(r2)[0]
         xd = x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x)
         yd = y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y
         return np.stack([xd, yd], axis=1)
 
+    def _distort_bearings(self, rays: np.ndarray) -> np.ndarray:
+        """Equidistant: distorted normalised coordinates of (N, 3) rays in any direction."""
+        r = np.hypot(rays[:, 0], rays[:, 1])
+        theta = np.arctan2(r, rays[:, 2])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            scale = np.where(r > 0, self._theta_d(theta) / r, 1.0 / rays[:, 2])
+        return rays[:, :2] * scale[:, None]
+
     def project(self, points_cam: np.ndarray) -> np.ndarray:
-        """Pixel coordinates (N, 2) of (N, 3) points in the camera frame (must have z > 0)."""
+        """Pixel coordinates (N, 2) of (N, 3) points in the camera frame (must have z > 0 for a
+        ``RADTAN`` lens; a fisheye takes any direction but the optical axis backwards)."""
         points_cam = np.atleast_2d(np.asarray(points_cam, dtype=float))
-        xy = points_cam[:, :2] / points_cam[:, 2:3]
-        xy = self.distort_normalized(xy)
+        if self.lens is LensModel.EQUIDISTANT:
+            xy = self._distort_bearings(points_cam)
+        else:
+            xy = self.distort_normalized(points_cam[:, :2] / points_cam[:, 2:3])
         return np.stack([self.fx * xy[:, 0] + self.cx, self.fy * xy[:, 1] + self.cy], axis=1)
 
+    def _distorted_normalised(self, pixels: np.ndarray) -> np.ndarray:
+        pixels = np.atleast_2d(np.asarray(pixels, dtype=float))
+        return np.stack([(pixels[:, 0] - self.cx) / self.fx, (pixels[:, 1] - self.cy) / self.fy], axis=1)
+
     def undistort_points(self, pixels: np.ndarray, iterations: int = 20) -> np.ndarray:
-        """Normalised undistorted coordinates (N, 2) of (N, 2) distorted pixel coordinates.
+        """Normalised undistorted coordinates (N, 2) of (N, 2) distorted pixel coordinates (NaN for
+        fisheye rays 90 degrees or more off the axis).
 
         Inverts the lens model by Newton's method with the analytic Jacobian (vectorised), which
         converges to machine precision in a few steps even for strong barrel distortion.
         """
-        pixels = np.atleast_2d(np.asarray(pixels, dtype=float))
-        target = np.stack([(pixels[:, 0] - self.cx) / self.fx, (pixels[:, 1] - self.cy) / self.fy], axis=1)
+        target = self._distorted_normalised(pixels)
+        if self.lens is LensModel.EQUIDISTANT:
+            rays = self._equidistant_bearings(target)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                xy = rays[:, :2] / rays[:, 2:3]
+            xy[rays[:, 2] <= 0.0] = np.nan
+            return xy
         if not self.has_distortion:
             return target
         xy = target.copy()
         for _ in range(iterations):
             x, y = xy[:, 0], xy[:, 1]
             r2 = x * x + y * y
-            radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
-            d_radial = self.k1 + r2 * (2.0 * self.k2 + 3.0 * self.k3 * r2)  # d(radial)/d(r2)
+            radial, d_radial = self._radial(r2)
             residual = self.distort_normalized(xy) - target
             j11 = radial + 2.0 * x * x * d_radial + 2.0 * self.p1 * y + 6.0 * self.p2 * x
             j12 = 2.0 * x * y * d_radial + 2.0 * self.p1 * x + 2.0 * self.p2 * y
@@ -258,6 +340,31 @@ class CameraModel:
             if np.max(np.abs(residual)) < 1e-15:
                 break
         return xy
+
+    def _equidistant_bearings(self, distorted: np.ndarray, iterations: int = 20) -> np.ndarray:
+        """Unit rays (N, 3) of distorted normalised coordinates: theta from theta_d by Newton's
+        method on the odd polynomial (started at theta_d, monotone over any real lens's field)."""
+        theta_d = np.hypot(distorted[:, 0], distorted[:, 1])
+        theta = theta_d.copy()
+        for _ in range(iterations):
+            t2 = theta * theta
+            slope = 1.0 + t2 * (3.0 * self.k1 + t2 * (5.0 * self.k2 + t2 * (7.0 * self.k3 + t2 * 9.0 * self.k4)))
+            residual = self._theta_d(theta) - theta_d
+            theta = np.clip(theta - residual / slope, 0.0, np.pi)
+            if np.max(np.abs(residual), initial=0.0) < 1e-15:
+                break
+        with np.errstate(divide="ignore", invalid="ignore"):
+            scale = np.where(theta_d > 0, np.sin(theta) / theta_d, 1.0)
+        return np.column_stack([distorted * scale[:, None], np.cos(theta)])
+
+    def bearings(self, pixels: np.ndarray) -> np.ndarray:
+        """Unit rays (N, 3) in the camera frame through (N, 2) distorted pixels; unlike normalised
+        coordinates they stay finite for fisheye rays at 90 degrees from the axis and beyond."""
+        if self.lens is LensModel.EQUIDISTANT:
+            return self._equidistant_bearings(self._distorted_normalised(pixels))
+        xy = self.undistort_points(pixels)
+        rays = np.column_stack([xy, np.ones(len(xy))])
+        return rays / np.linalg.norm(rays, axis=1, keepdims=True)
 
     def undistort_pixels(self, pixels: np.ndarray) -> np.ndarray:
         """Where (N, 2) distorted pixels would lie in an ideal pinhole image with the same K."""
@@ -288,5 +395,8 @@ class CameraModel:
         )
 
     def undistort_image(self, image: np.ndarray) -> np.ndarray:
-        """The image resampled to an ideal pinhole camera with the same K."""
+        """The image resampled to an ideal pinhole camera with the same K (a fisheye's field
+        beyond what that pinhole sees is cut off)."""
+        if self.lens is LensModel.EQUIDISTANT:
+            return cv2.fisheye.undistortImage(image, self.K, self.distortion, Knew=self.K)
         return cv2.undistort(image, self.K, self.distortion)

@@ -3,6 +3,8 @@ import pytest
 from evp.calib.camera_files import read_camera, write_opencv_yaml
 from evp.calib.profiles import load_profile
 from evp.errors import CalibrationError
+from evp.io.ros_messages import ROS2, camera_info_to_msg, msg_to_camera
+from evp.types import CameraModel, LensModel
 
 EXPECTED = dict(width=640, height=480, fx=500.0, fy=501.0, cx=320.5, cy=240.5, k1=0.1, k2=-0.2, p1=0.001, p2=0.002)
 
@@ -57,16 +59,110 @@ def test_kalibr_camchain_and_euroc_sensor_yaml(tmp_path):
     _check(read_camera(chain))
     assert read_camera(chain, camera="cam1").fx == 400.0
     chain.write_text(chain.read_text().replace("distortion_model: radtan", "distortion_model: equidistant", 1))
-    with pytest.raises(CalibrationError, match="equidistant"):
-        read_camera(chain)
+    fisheye = read_camera(chain)
+    assert fisheye.lens is LensModel.EQUIDISTANT and fisheye.distortion.tolist() == [0.1, -0.2, 0.001, 0.002]
 
 
-def test_written_yaml_reads_back_exactly(tmp_path):
-    camera = load_profile("nexus5x_640x380")
+RATIONAL = CameraModel(640, 480, 500.0, 501.0, 320.5, 240.5, 0.1, -0.2, 0.001, 0.002, 0.03, "r", k4=0.4, k5=-0.05, k6=0.006)
+FISHEYE = CameraModel(640, 480, 200.0, 201.0, 320.5, 240.5, 0.0035, 0.0007, k3=-0.002, k4=0.0002, name="f", lens=LensModel.EQUIDISTANT)
+
+
+@pytest.mark.parametrize("camera", [load_profile("nexus5x_640x380"), RATIONAL, FISHEYE], ids=["radtan", "rational", "equidistant"])
+def test_written_yaml_reads_back_exactly(tmp_path, camera):
     write_opencv_yaml(tmp_path / "c.yaml", camera, {"rms_reprojection_error_px": 0.12})
     back = read_camera(tmp_path / "c.yaml")
     assert back.K.tolist() == camera.K.tolist()
+    assert back.lens is camera.lens
     assert back.distortion.tolist() == camera.distortion.tolist()
+
+
+@pytest.mark.parametrize("camera", [RATIONAL, FISHEYE], ids=["rational", "equidistant"])
+def test_ros_camera_info_message_keeps_the_lens(camera):
+    back = msg_to_camera(camera_info_to_msg(ROS2, 1.0, camera), "bag.mcap")
+    assert back.lens is camera.lens and back.distortion.tolist() == camera.distortion.tolist()
+
+
+def _ros_yaml(model: str, coefficients: list[float]) -> str:
+    return (
+        "image_width: 640\nimage_height: 480\ncamera_matrix: {rows: 3, cols: 3, data: [500, 0, 320.5, 0, 501, 240.5, 0, 0, 1]}\n"
+        f"{model}distortion_coefficients: {{rows: 1, cols: {len(coefficients)}, data: {coefficients}}}\n"
+    )
+
+
+def test_ros_rational_polynomial_keeps_all_eight_coefficients(tmp_path):
+    path = tmp_path / "ost.yaml"
+    coefficients = [0.1, -0.2, 0.001, 0.002, 0.03, 0.4, -0.05, 0.006]
+    path.write_text(_ros_yaml("distortion_model: rational_polynomial\n", coefficients))
+    camera = read_camera(path)
+    assert camera.lens is LensModel.RADTAN and camera.distortion.tolist() == coefficients
+    path.write_text(_ros_yaml("", coefficients))  # OpenCV FileStorage: eight coefficients are the rational model
+    assert read_camera(path).distortion.tolist() == coefficients
+
+
+@pytest.mark.parametrize("model", ["distortion_model: equidistant\n", "fisheye_model: 1\n"])
+def test_opencv_and_ros_equidistant(tmp_path, model):
+    path = tmp_path / "fisheye.yaml"
+    path.write_text(_ros_yaml(model, [0.01, -0.002, 0.0003, -0.00004]))
+    camera = read_camera(path)
+    assert camera.lens is LensModel.EQUIDISTANT and (camera.k3, camera.k4) == (0.0003, -0.00004)
+
+
+@pytest.mark.parametrize("prefix", ["Camera", "Camera1"])
+def test_orbslam3_kannala_brandt_is_a_fisheye(tmp_path, prefix):
+    path = tmp_path / "orb.yaml"
+    path.write_text(
+        f'%YAML:1.0\nCamera.type: "KannalaBrandt8"\n{prefix}.fx: 190.97\n{prefix}.fy: 190.97\n{prefix}.cx: 254.93\n{prefix}.cy: 256.89\n'
+        f"{prefix}.k1: 0.0034823894022493434\n{prefix}.k2: 0.0007150348452162257\n{prefix}.k3: -0.0020532361418706202\n"
+        f"{prefix}.k4: 0.00020293673591811182\nCamera.width: 512\nCamera.height: 512\n"
+    )
+    camera = read_camera(path)
+    assert camera.lens is LensModel.EQUIDISTANT
+    assert camera.distortion.tolist() == [0.0034823894022493434, 0.0007150348452162257, -0.0020532361418706202, 0.00020293673591811182]
+    assert (camera.p1, camera.p2) == (0.0, 0.0)
+
+
+def test_orbslam3_rectified_has_no_distortion(tmp_path):
+    path = tmp_path / "orb.yaml"
+    path.write_text(
+        'Camera.type: "Rectified"\nCamera1.fx: 500.0\nCamera1.fy: 500.0\nCamera1.cx: 320.0\nCamera1.cy: 240.0\nCamera.width: 640\nCamera.height: 480\n'
+    )
+    camera = read_camera(path)
+    assert camera.lens is LensModel.RADTAN and not camera.has_distortion
+
+
+ORBSLAM_BASE = "Camera.fx: 500.0\nCamera.fy: 500.0\nCamera.cx: 320.0\nCamera.cy: 240.0\nCamera.width: 640\nCamera.height: 480\n"
+KALIBR_BASE = "cam0:\n  intrinsics: [500.0, 501.0, 320.5, 240.5]\n  resolution: [640, 480]\n"
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        (_ros_yaml("", [0.1] * 12), "12 distortion coefficients: OpenCV's thin-prism model"),
+        (_ros_yaml("", [0.1] * 14), "14 distortion coefficients: OpenCV's tilted-sensor model"),
+        (_ros_yaml("distortion_model: rational_polynomial\n", [0.1] * 5), "rational_polynomial has 8 coefficients"),
+        (_ros_yaml("distortion_model: equidistant\n", [0.1] * 5), "equidistant \\(fisheye\\) lens has 4 coefficients"),
+        (_ros_yaml("distortion_model: fov\n", [0.1]), "unsupported distortion model 'fov'"),
+        (_ros_yaml("", [0.1] * 6), "radial-tangential lens has 4, 5 or 8 coefficients"),
+        ('Camera.type: "Fisheye"\n' + ORBSLAM_BASE, "ORB-SLAM camera type 'Fisheye' is not supported"),
+        (
+            KALIBR_BASE + "  camera_model: omni\n  distortion_model: radtan\n  distortion_coeffs: [0, 0, 0, 0]\n",
+            "camera model 'omni' \\(unified omnidirectional",
+        ),
+        (KALIBR_BASE + "  camera_model: ds\n  distortion_model: none\n  distortion_coeffs: []\n", "camera model 'ds' \\(double sphere"),
+        (KALIBR_BASE + "  camera_model: eucm\n  distortion_model: none\n  distortion_coeffs: []\n", "camera model 'eucm' \\(extended unified"),
+        (KALIBR_BASE + "  camera_model: pinhole\n  distortion_model: fov\n  distortion_coeffs: [0.9]\n", "distortion model 'fov' \\(field-of-view"),
+        (
+            KALIBR_BASE + "  camera_model: pinhole\n  distortion_model: radtan8\n  distortion_coeffs: [0.9]\n",
+            "unsupported camera/distortion model pinhole/radtan8",
+        ),
+    ],
+    ids=["thin-prism", "tilt", "rational-count", "equidistant-count", "ros-fov", "six", "orbslam-type", "omni", "ds", "eucm", "kalibr-fov", "kalibr-other"],
+)
+def test_lens_models_evp_cannot_use_are_refused_by_name(tmp_path, text, message):
+    path = tmp_path / "camera.yaml"
+    path.write_text(text)
+    with pytest.raises(CalibrationError, match=message):
+        read_camera(path)
 
 
 @pytest.mark.parametrize(

@@ -11,6 +11,7 @@ import yaml
 from evp.io.registry import open_dataset
 from evp.sim.generate import EPOCH_S, generate
 from evp.sim.scenarios import SCENARIOS, SimOptions
+from evp.types import LensModel
 
 REQUIRED = {"drone-flight", "circle-indoor", "wheel-robot-room", "marker-field"}
 
@@ -130,3 +131,15 @@ def test_texture_from_image_files(tmp_path):
     cv2.imwrite(str(photo), np.random.default_rng(0).integers(0, 255, (300, 400), dtype=np.uint8))
     result = generate("hover-drift", SimOptions(duration_s=0.5, fps=4.0, texture=f"{photo},{photo}"), tmp_path / "out", workers=1)
     assert result.frames == 3
+
+
+def test_fisheye_dataset_reads_back_as_the_same_fisheye(tmp_path):
+    options = SimOptions(duration_s=0.2, fps=10.0, camera="global_752x480", lens="fisheye", fisheye_fov_deg=170.0)
+    result = generate("hover-drift", options, tmp_path, workers=1)
+    sensor = yaml.safe_load((tmp_path / "mav0" / "cam0" / "sensor.yaml").read_text())
+    assert (sensor["camera_model"], sensor["distortion_model"]) == ("pinhole", "equidistant")
+    camera = open_dataset(tmp_path).camera
+    assert camera.lens is LensModel.EQUIDISTANT and camera.width == 752
+    assert camera.K.tolist() == result.scenario.camera.K.tolist() and camera.distortion.tolist() == result.scenario.camera.distortion.tolist()
+    corner = camera.bearings(np.array([[-0.5, -0.5]]))[0]
+    assert np.degrees(np.arccos(corner[2])) == pytest.approx(85.0)

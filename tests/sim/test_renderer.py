@@ -130,3 +130,41 @@ def test_ray_distance_to_the_ground_and_to_a_roof():
     assert ray_distance(scenario.scene, np.array([0.0, 0.0, 0.5]), np.array([0.0, 0.0, -1.0])) == pytest.approx(0.499)
     tilted = Rotation.from_euler("x", 30, degrees=True).apply([0.0, 0.0, -1.0])
     assert ray_distance(scenario.scene, np.array([0.0, 0.0, 0.5]), tilted) == pytest.approx(0.499 / np.cos(np.radians(30)))
+
+
+FISHEYE = build_scenario("circle-indoor", SimOptions(lens="fisheye", fisheye_fov_deg=180.0, duration_s=1.0)).camera.scaled(320, 190)
+
+
+def test_fisheye_renders_the_board_where_its_model_projects_it():
+    test_known_points_project_where_the_renderer_draws_them(FISHEYE.scaled(640, 380))
+
+
+@pytest.mark.parametrize("angle_deg", [0.0, 45.0, 75.0, 85.0])
+def test_fisheye_renders_a_point_far_off_axis_where_its_model_projects_it(angle_deg):
+    """A small blob facing the camera, ``angle_deg`` off the axis towards the image corner: the
+    centroid of its image is where the camera projects its centre (to a fraction of a pixel)."""
+    azimuth = np.arctan2(FISHEYE.cy, FISHEYE.cx)
+    theta = np.radians(angle_deg)
+    direction = np.array([np.sin(theta) * np.cos(azimuth), np.sin(theta) * np.sin(azimuth), np.cos(theta)])
+    u = np.cross(direction, [0.0, 0.0, 1.0] if angle_deg > 10 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(direction, u)
+    size = 0.06
+    texel = np.arange(64) - 31.5
+    texture = (255 * np.exp(-(texel[:, None] ** 2 + texel[None, :] ** 2) / (2 * 8.0**2))).astype(np.uint8)
+    quad = TexturedQuad(direction - size / 2 * (u + v), u, v, size, size, texture, size / 64, "blob")
+    image = Renderer(FISHEYE, Scene([quad], background=0)).render(np.eye(4)).astype(float)
+    v_grid, u_grid = np.mgrid[: image.shape[0], : image.shape[1]]
+    centroid = np.array([np.sum(u_grid * image), np.sum(v_grid * image)]) / image.sum()
+    assert np.linalg.norm(centroid - FISHEYE.project(direction[None])[0]) < 0.1
+
+
+def test_fisheye_rolling_shutter_render_matches_the_global_one_when_still():
+    scenario = build_scenario("circle-indoor", SimOptions(lens="fisheye", duration_s=1.0))
+    camera = scenario.camera.scaled(160, 95)
+    renderer = Renderer(camera, scenario.scene)
+    T = scenario.camera_poses(np.array([0.5]))[0]
+    still = renderer.render(T).astype(float)
+    rolling = renderer.render(np.eye(4), row_poses=np.repeat(T[None], camera.height, axis=0)).astype(float)
+    assert still.std() > 5
+    assert np.abs(rolling - still).mean() < 0.05, np.abs(rolling - still).mean()

@@ -152,3 +152,24 @@ def test_a_failure_in_the_helper_thread_is_raised_not_waited_for(monkeypatch):
     worker.join(timeout=10)
     assert not worker.is_alive() and len(outcome) == 1
     helper.close()
+
+
+def test_features_are_kept_within_the_ray_cone_of_a_wide_fisheye():
+    from evp.slam.projection import undistorted_bounds
+    from evp.types import LensModel
+
+    pinhole = _extractor()
+    assert all(mask is None for mask in pinhole._level_masks)  # a pinhole keeps every feature
+    assert undistorted_bounds(pinhole) == (0.0, 0.0, 639.0, 479.0)
+    fisheye = CameraModel(640, 480, 254.6, 254.6, 319.5, 239.5, lens=LensModel.EQUIDISTANT)  # 180 degrees diagonal
+    extractor = OrbExtractor(OrbSettings(n_features=1500), fisheye)
+    image = cv2.resize(np.random.default_rng(0).integers(0, 255, (120, 160), dtype=np.uint8), (640, 480), interpolation=cv2.INTER_NEAREST)
+    features = extractor.extract(image)
+    angles = np.degrees(np.arccos(fisheye.bearings(features.px)[:, 2]))
+    assert len(features) > 500 and angles.max() <= orb_module.MAX_RAY_ANGLE_DEG + 0.5
+    assert angles.max() > orb_module.MAX_RAY_ANGLE_DEG - 5  # the cone, not the whole image, bounds them
+    u_min, v_min, u_max, v_max = undistorted_bounds(extractor)
+    reach = np.tan(np.radians(orb_module.MAX_RAY_ANGLE_DEG)) * fisheye.fx
+    assert np.isfinite([u_min, v_min, u_max, v_max]).all()
+    assert u_min == pytest.approx(fisheye.cx - reach) and u_max == pytest.approx(fisheye.cx + reach)
+    assert np.all((features.un_px >= [u_min, v_min]) & (features.un_px <= [u_max, v_max]))

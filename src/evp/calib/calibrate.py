@@ -66,7 +66,7 @@ class CalibrationResult:
         lines += [f"  {name}: {error:.4f} px" for name, error in sorted(self.per_view_rms_px.items())]
         lines += [f"  rejected {name}: {reason}" for name, reason in sorted(self.rejected.items())]
         c = self.camera
-        lines.append(f"fx {c.fx:.3f} fy {c.fy:.3f} cx {c.cx:.3f} cy {c.cy:.3f} k1 {c.k1:.5f} k2 {c.k2:.5f} p1 {c.p1:.5f} p2 {c.p2:.5f} k3 {c.k3:.5f}")
+        lines.append(f"fx {c.fx:.3f} fy {c.fy:.3f} cx {c.cx:.3f} cy {c.cy:.3f} " + " ".join(f"{name} {value:.5f}" for name, value in c.coefficients.items()))
         return "\n".join(lines)
 
 

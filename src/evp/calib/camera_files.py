@@ -1,17 +1,29 @@
 """Read camera calibration from the files robotics tools write, and write OpenCV FileStorage YAML.
 
-Understood formats (detected from the keys):
+Understood formats (detected from the keys), and the lens models each can state
+(:class:`evp.types.LensModel`: pinhole radial-tangential with OpenCV's 4, 5 or 8 coefficients,
+or the equidistant Kannala-Brandt fisheye):
 
-* OpenCV FileStorage (``camera_matrix``, ``distortion_coefficients``, ``image_width/height``),
-  as written by ``evp calibrate`` and OpenCV's calibration sample
-* ROS ``camera_info`` YAML (``camera_matrix: {rows, cols, data}``, ``distortion_model``)
-* ORB-SLAM2/3 settings (``Camera.fx`` ... or ``Camera1.fx`` ..., ``Camera.width``)
-* Kalibr camchain (``cam0: {intrinsics, distortion_coeffs, resolution}``) and EuRoC ``sensor.yaml``
+* OpenCV FileStorage (``camera_matrix``, ``distortion_coefficients``, ``image_width/height``), as
+  written by ``evp calibrate`` and OpenCV's calibration sample: radtan from 4, 5 or 8
+  coefficients; equidistant when ``distortion_model`` says so or the sample's ``fisheye_model``
+  flag is set
+* ROS ``camera_info`` YAML (``camera_matrix: {rows, cols, data}``, ``distortion_model``):
+  ``plumb_bob``, ``rational_polynomial``, ``equidistant``
+* ORB-SLAM2/3 settings (``Camera.fx`` ... or ``Camera1.fx`` ..., ``Camera.width``):
+  ``Camera.type`` ``PinHole``, ``KannalaBrandt8`` or ``Rectified`` (ORB-SLAM2: no type, pinhole)
+* Kalibr camchain (``cam0: {intrinsics, distortion_coeffs, resolution}``) and EuRoC
+  ``sensor.yaml``: ``pinhole`` with ``radtan`` (``radial-tangential``), ``equidistant`` or ``none``
 * one line of numbers ``fx fy cx cy [k1 k2 p1 p2 [k3]]`` (RPG / DAVIS style ``calib.txt``)
+
+A lens model EVP cannot use (OpenCV's thin-prism and tilted-sensor terms, Kalibr's omni, double
+sphere, extended unified and FOV models, an unknown ORB-SLAM camera type) is refused by name with
+a :class:`~evp.errors.CalibrationError`, never read as another model.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -20,15 +32,64 @@ import numpy as np
 import yaml
 
 from evp.errors import CalibrationError
-from evp.types import CameraModel
+from evp.types import CameraModel, LensModel
+
+RADTAN_NAMES = ("plumb_bob", "rational_polynomial", "radtan", "radial-tangential")  # ROS, Kalibr, EuRoC
+EQUIDISTANT_NAMES = ("equidistant", "fisheye")  # ROS and Kalibr; "fisheye" as some OpenCV tools write it
+# OpenCV coefficient counts beyond the rational model, and the terms they add
+OPENCV_REFUSED_COUNTS = {12: "thin-prism model (s1..s4)", 14: "tilted-sensor model (s1..s4, tauX, tauY)"}
+KALIBR_REFUSED = {
+    "omni": "unified omnidirectional (Mei)",
+    "ds": "double sphere",
+    "eucm": "extended unified (EUCM)",
+    "fov": "field-of-view (Devernay-Faugeras)",
+}
+ORBSLAM_TYPES = ("PinHole", "KannalaBrandt8", "Rectified")
 
 
-def _camera(path: Path, width, height, fx, fy, cx, cy, dist, name: str) -> CameraModel:
-    dist = [float(d) for d in (list(dist) + [0.0] * 5)[:5]]
+def _camera(path: Path, width, height, fx, fy, cx, cy, coefficients: Sequence, lens: LensModel, name: str) -> CameraModel:
+    """The camera from OpenCV-ordered coefficients of its lens model: radtan k1 k2 p1 p2 [k3 [k4 k5
+    k6]] (none, 4, 5 or 8), equidistant k1 k2 k3 k4."""
+    values = [float(c) for c in coefficients]
+    count = len(values)
+    if count in OPENCV_REFUSED_COUNTS:
+        raise CalibrationError(
+            path,
+            f"{count} distortion coefficients: OpenCV's {OPENCV_REFUSED_COUNTS[count]} is not supported (EVP uses 4, 5 or 8 radial-tangential or 4 equidistant)",
+        )
+    if lens is LensModel.EQUIDISTANT:
+        if count != 4:
+            raise CalibrationError(path, f"an equidistant (fisheye) lens has 4 coefficients k1..k4, found {count}")
+        names = ("k1", "k2", "k3", "k4")
+    else:
+        if count not in (0, 4, 5, 8):
+            raise CalibrationError(path, f"a radial-tangential lens has 4, 5 or 8 coefficients (k1 k2 p1 p2 [k3 [k4 k5 k6]]), found {count}")
+        names = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")[:count]
     try:
-        return CameraModel(int(width), int(height), float(fx), float(fy), float(cx), float(cy), *dist, name=name)
+        return CameraModel(int(width), int(height), float(fx), float(fy), float(cx), float(cy), name=name, lens=lens, **dict(zip(names, values, strict=True)))
     except (TypeError, ValueError) as exc:
         raise CalibrationError(path, f"invalid camera parameters: {exc}") from exc
+
+
+def lens_from_ros(path: Path, model: str | None, count: int) -> LensModel:
+    """The lens of a ROS / OpenCV ``distortion_model`` name (None when the file names none: then
+    radial-tangential, OpenCV's pinhole convention for 4, 5 or 8 coefficients)."""
+    if model is None or model in RADTAN_NAMES:
+        if model == "rational_polynomial" and count != 8:
+            raise CalibrationError(path, f"rational_polynomial has 8 coefficients (k1 k2 p1 p2 k3 k4 k5 k6), found {count}")
+        return LensModel.RADTAN
+    if model in EQUIDISTANT_NAMES:
+        return LensModel.EQUIDISTANT
+    raise CalibrationError(path, f"unsupported distortion model {model!r} (EVP uses plumb_bob, rational_polynomial or equidistant)")
+
+
+def camera_from_ros(path: Path, width, height, K: np.ndarray, model: str | None, coefficients: Sequence, name: str) -> CameraModel:
+    """A camera from a ROS ``CameraInfo`` (or OpenCV FileStorage) intrinsic matrix, distortion model
+    name and coefficients; ``path`` names the file it came from in errors."""
+    K = np.asarray(K, dtype=float).reshape(3, 3)
+    coefficients = list(np.asarray(coefficients, dtype=float).ravel())
+    lens = lens_from_ros(path, model, len(coefficients))
+    return _camera(path, width, height, K[0, 0], K[1, 1], K[0, 2], K[1, 2], coefficients, lens, name)
 
 
 def load_yaml_mapping(path: Path, error=CalibrationError) -> dict[str, Any]:
@@ -62,38 +123,53 @@ def _matrix(value: Any) -> np.ndarray:
 
 
 def _from_opencv(path: Path, data: dict) -> CameraModel:
-    K = _matrix(data["camera_matrix"]).reshape(3, 3)
-    dist = _matrix(data.get("distortion_coefficients", np.zeros(5)))
+    """OpenCV FileStorage or ROS camera_info YAML."""
     width = data.get("image_width")
     height = data.get("image_height")
     if width is None or height is None:
         raise CalibrationError(path, "image_width and image_height are required")
-    model = str(data.get("distortion_model", "plumb_bob"))
-    if model not in ("plumb_bob", "radtan", "radial-tangential", "rational_polynomial") or len(dist) > 8:
-        raise CalibrationError(path, f"unsupported distortion model {model!r} (EVP uses OpenCV radial-tangential)")
-    return _camera(path, width, height, K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist, str(data.get("camera_name", path.stem)))
+    model = data.get("distortion_model")
+    if model is None and data.get("fisheye_model"):  # OpenCV's calibration sample run with its fisheye option
+        model = "equidistant"
+    dist = _matrix(data.get("distortion_coefficients", np.zeros(0)))
+    name = str(data.get("camera_name", path.stem))
+    return camera_from_ros(path, width, height, _matrix(data["camera_matrix"]), None if model is None else str(model), dist, name)
 
 
 def _from_orbslam(path: Path, data: dict) -> CameraModel:
+    """ORB-SLAM3 settings name the model in ``Camera.type``; ORB-SLAM2's (no type) are pinhole."""
     prefix = "Camera1." if "Camera1.fx" in data else "Camera."
     get = lambda key, default=None: data.get(prefix + key, data.get("Camera." + key, default))  # noqa: E731
     width = get("width", data.get("Camera.width"))
     height = get("height", data.get("Camera.height"))
     if width is None or height is None:
         raise CalibrationError(path, "ORB-SLAM settings need Camera.width and Camera.height")
-    dist = [get(k, 0.0) for k in ("k1", "k2", "p1", "p2", "k3")]
-    return _camera(path, width, height, get("fx"), get("fy"), get("cx"), get("cy"), dist, path.stem)
+    kind = str(data.get("Camera.type", "PinHole"))
+    if kind not in ORBSLAM_TYPES:
+        raise CalibrationError(path, f"ORB-SLAM camera type {kind!r} is not supported (EVP reads {', '.join(ORBSLAM_TYPES)})")
+    if kind == "KannalaBrandt8":
+        lens, names = LensModel.EQUIDISTANT, ("k1", "k2", "k3", "k4")
+    elif kind == "Rectified":  # images already undistorted: ORB-SLAM3 ignores any coefficients given
+        lens, names = LensModel.RADTAN, ()
+    else:
+        lens, names = LensModel.RADTAN, ("k1", "k2", "p1", "p2") + (("k3",) if get("k3") is not None else ())
+    coefficients = [get(name, 0.0) for name in names]
+    return _camera(path, width, height, get("fx"), get("fy"), get("cx"), get("cy"), coefficients, lens, path.stem)
 
 
 def _from_kalibr(path: Path, cam: dict, name: str) -> CameraModel:
-    model = cam.get("camera_model", "pinhole")
-    distortion = cam.get("distortion_model", "radtan")
-    if model != "pinhole" or distortion not in ("radtan", "radial-tangential"):
-        raise CalibrationError(path, f"unsupported camera/distortion model {model}/{distortion} (EVP uses pinhole + radtan)")
+    model = str(cam.get("camera_model", "pinhole"))
+    distortion = str(cam.get("distortion_model", "radtan"))
+    for kind, part in ((model, "camera model"), (distortion, "distortion model")):
+        if kind in KALIBR_REFUSED:
+            raise CalibrationError(path, f"Kalibr {part} {kind!r} ({KALIBR_REFUSED[kind]}) is not supported (EVP uses pinhole with radtan or equidistant)")
+    if model != "pinhole" or distortion not in ("radtan", "radial-tangential", "equidistant", "none"):
+        raise CalibrationError(path, f"unsupported camera/distortion model {model}/{distortion} (EVP uses pinhole with radtan or equidistant)")
+    lens = LensModel.EQUIDISTANT if distortion == "equidistant" else LensModel.RADTAN
     fx, fy, cx, cy = cam["intrinsics"]
-    coeffs = cam.get("distortion_coeffs", cam.get("distortion_coefficients", []))
+    coefficients = [] if distortion == "none" else cam.get("distortion_coeffs", cam.get("distortion_coefficients", []))
     width, height = cam["resolution"]
-    return _camera(path, width, height, fx, fy, cx, cy, coeffs, name)
+    return _camera(path, width, height, fx, fy, cx, cy, coefficients, lens, name)
 
 
 def _from_numbers(path: Path, text: str, width: int | None, height: int | None) -> CameraModel:
@@ -105,7 +181,7 @@ def _from_numbers(path: Path, text: str, width: int | None, height: int | None) 
         raise CalibrationError(path, f"expected 4, 8 or 9 numbers (fx fy cx cy k1 k2 p1 p2 k3), found {len(values)}", line=1)
     if width is None or height is None:
         raise CalibrationError(path, "this calibration has no image size; it is taken from the images")
-    return _camera(path, width, height, *values[:4], values[4:], path.stem)
+    return _camera(path, width, height, *values[:4], values[4:], LensModel.RADTAN, path.stem)
 
 
 def read_camera(path: str | Path, width: int | None = None, height: int | None = None, camera: str = "cam0") -> CameraModel:
@@ -139,15 +215,24 @@ def read_camera(path: str | Path, width: int | None = None, height: int | None =
     raise CalibrationError(path, "not a calibration file EVP understands (OpenCV, ROS camera_info, ORB-SLAM, Kalibr or EuRoC sensor.yaml)")
 
 
+def distortion_model_name(camera: CameraModel) -> str:
+    """The ROS / OpenCV ``distortion_model`` name of the camera's lens: ``plumb_bob``,
+    ``rational_polynomial`` (8 coefficients) or ``equidistant``."""
+    if camera.lens is LensModel.EQUIDISTANT:
+        return "equidistant"
+    return "rational_polynomial" if len(camera.distortion) == 8 else "plumb_bob"
+
+
 def write_opencv_yaml(path: str | Path, camera: CameraModel, extra: dict[str, float | int] | None = None, text: dict[str, str] | None = None) -> None:
-    """OpenCV FileStorage YAML, readable by OpenCV, ORB-SLAM-style tools and :func:`read_camera`."""
+    """OpenCV FileStorage YAML, readable by OpenCV, ORB-SLAM-style tools and :func:`read_camera`
+    (which reads the lens model back from ``distortion_model``)."""
     storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
     storage.write("camera_name", camera.name or "camera")
     storage.write("image_width", camera.width)
     storage.write("image_height", camera.height)
     storage.write("camera_matrix", camera.K)
-    storage.write("distortion_model", "plumb_bob")
-    storage.write("distortion_coefficients", camera.distortion.reshape(1, 5))
+    storage.write("distortion_model", distortion_model_name(camera))
+    storage.write("distortion_coefficients", camera.distortion.reshape(1, -1))
     for key, value in (extra or {}).items():
         storage.write(key, value if isinstance(value, int) else float(value))
     for key, value in (text or {}).items():

@@ -47,6 +47,7 @@ def camera(
     """Show a camera model from a file or a shipped profile (e.g. nexus5x_640x380); list profiles with 'list'."""
     from evp.calib.camera_files import write_opencv_yaml
     from evp.calib.profiles import camera_from, profile_names
+    from evp.types import LensModel
 
     if source == "list":
         typer.echo("\n".join(profile_names()))
@@ -56,7 +57,8 @@ def camera(
         model = model.scaled(width, height)
     typer.echo(
         f"{model.name}: {model.width}x{model.height} fx {model.fx:.4f} fy {model.fy:.4f} cx {model.cx:.4f} cy {model.cy:.4f} "
-        f"k1 {model.k1:g} k2 {model.k2:g} p1 {model.p1:g} p2 {model.p2:g} k3 {model.k3:g}"
+        + " ".join(f"{name} {value:g}" for name, value in model.coefficients.items())
+        + ("" if model.lens is LensModel.RADTAN else f" ({model.lens.value})")
     )
     if out:
         write_opencv_yaml(out, model)

@@ -52,6 +52,8 @@ def sim(
     seed: int | None = typer.Option(None, "--seed", help="Random seed (noise, textures, paths)."),
     fps: float | None = typer.Option(None, "--fps", help="Camera frame rate."),
     camera: str | None = typer.Option(None, "--camera", help="nexus5x_640x380, global_752x480, phone_1280x720 or car_640x194."),
+    lens: str | None = typer.Option(None, "--lens", help="pinhole (the camera preset's lens) or fisheye (equidistant, at the preset's resolution)."),
+    fisheye_fov: float | None = typer.Option(None, "--fisheye-fov", help="Fisheye diagonal field of view, 120-180 degrees (corner to corner; 150 by default)."),
     texture: str | None = typer.Option(None, "--texture", help="rich, low, floor, wall, or image file(s) separated by commas."),
     altitude: float | None = typer.Option(None, "--altitude", help="Flight altitude / camera height (m)."),
     speed: float | None = typer.Option(None, "--speed", help="Cruise speed (m/s)."),
@@ -84,6 +86,7 @@ def sim(
     from evp.sim.generate import generate
 
     typed = dict(duration_s=duration, seed=seed, fps=fps, camera=camera, texture=texture, altitude_m=altitude, speed_m_s=speed, pattern=pattern)
+    typed.update(lens=lens, fisheye_fov_deg=fisheye_fov)
     typed.update(gimbal=gimbal, relief=relief, rolling_shutter_s=rolling_shutter, drop_probability=drop, noise_sigma=noise, image_format=image_format)
     typed_gps = dict(clock_offset_s=gps_offset, spoof_start_s=spoof_start, spoof_mode=spoof_mode, spoof_rate_m_s=spoof_rate, spoof_jump_m=spoof_jump)
     typed_gps["outages"] = [_outage(o) for o in outage] or None

@@ -6,11 +6,13 @@ Used by the bag/MCAP reader and by everything that records ROS-compatible files.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
+from evp.calib.camera_files import camera_from_ros, distortion_model_name
 from evp.types import BaroSample, CameraModel, GpsFix, ImuSample
 
 ROS2 = get_typestore(Stores.ROS2_HUMBLE)
@@ -104,7 +106,7 @@ def camera_info_to_msg(store, timestamp: float, camera: CameraModel, frame_id: s
         header=_header(store, timestamp, frame_id),
         height=camera.height,
         width=camera.width,
-        distortion_model="plumb_bob",
+        distortion_model=distortion_model_name(camera),
         binning_x=0,
         binning_y=0,
         roi=roi,
@@ -161,7 +163,10 @@ def msg_to_baro(msg) -> BaroSample:
     return BaroSample(stamp_seconds(msg.header), float(msg.fluid_pressure))
 
 
-def msg_to_camera(msg) -> CameraModel:
-    K = np.asarray(getattr(msg, "k", getattr(msg, "K", None)), dtype=float).reshape(3, 3)
-    D = list(np.asarray(getattr(msg, "d", getattr(msg, "D", [])), dtype=float))
-    return CameraModel(int(msg.width), int(msg.height), K[0, 0], K[1, 1], K[0, 2], K[1, 2], *(D + [0.0] * 5)[:5], name=msg.header.frame_id or "camera")
+def msg_to_camera(msg, source: str | Path) -> CameraModel:
+    """The camera of a ``CameraInfo`` message from ``source`` (the bag or recording, named in errors);
+    its ``distortion_model`` picks the lens (plumb_bob, rational_polynomial, equidistant)."""
+    K = np.asarray(getattr(msg, "k", getattr(msg, "K", None)), dtype=float)
+    D = np.asarray(getattr(msg, "d", getattr(msg, "D", [])), dtype=float)
+    model = str(msg.distortion_model) or None
+    return camera_from_ros(Path(source), msg.width, msg.height, K, model, D, msg.header.frame_id or "camera")

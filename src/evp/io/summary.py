@@ -36,6 +36,7 @@ def summarise(dataset: Dataset) -> dict:
             "fy": c.fy,
             "cx": c.cx,
             "cy": c.cy,
+            "lens": c.lens.value,
             "distortion": c.distortion.tolist(),
         }
     else:
@@ -72,7 +73,9 @@ def describe(summary: dict) -> str:
     c = summary["calibration"]
     if c:
         d = ", ".join(f"{v:g}" for v in c["distortion"])
-        lines.append(f"  calibration: {c['name']} {c['width']}x{c['height']} fx {c['fx']:.3f} fy {c['fy']:.3f} cx {c['cx']:.3f} cy {c['cy']:.3f} dist [{d}]")
+        lines.append(
+            f"  calibration: {c['name']} {c['width']}x{c['height']} fx {c['fx']:.3f} fy {c['fy']:.3f} cx {c['cx']:.3f} cy {c['cy']:.3f} {c['lens']} [{d}]"
+        )
     else:
         lines.append("  calibration: none")
     g = summary["ground_truth"]

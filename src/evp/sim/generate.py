@@ -23,7 +23,7 @@ from evp.sim import sensors
 from evp.sim.camera_effects import render_frame
 from evp.sim.scenarios import Scenario, SimOptions, build_scenario
 from evp.sim.world import Renderer, ray_distance
-from evp.types import Trajectory
+from evp.types import LensModel, Trajectory
 
 EPOCH_S = 1_700_000_000  # simulated clocks start here (2023-11-14), like real sensor clocks
 IMAGE_PARAMS = {"png": [cv2.IMWRITE_PNG_COMPRESSION, 1], "jpg": [cv2.IMWRITE_JPEG_QUALITY, 95]}
@@ -101,7 +101,12 @@ def _write_csv(path: Path, header: str, rows: list[list]) -> None:
 
 
 def _camera_yaml(scenario: Scenario, options: SimOptions) -> str:
+    """EuRoC's camera sensor.yaml, in Kalibr's model names: pinhole with radial-tangential (its four
+    coefficients, all of OpenCV's when k3 or the rational terms are used) or equidistant."""
     c = scenario.camera
+    coefficients = [float(v) for v in c.distortion]
+    if c.lens is LensModel.RADTAN and not any(coefficients[4:]):
+        coefficients = coefficients[:4]
     return yaml.safe_dump(
         {
             "sensor_type": "camera",
@@ -111,8 +116,8 @@ def _camera_yaml(scenario: Scenario, options: SimOptions) -> str:
             "resolution": [c.width, c.height],
             "camera_model": "pinhole",
             "intrinsics": [c.fx, c.fy, c.cx, c.cy],
-            "distortion_model": "radial-tangential",
-            "distortion_coefficients": [c.k1, c.k2, c.p1, c.p2],
+            "distortion_model": "radial-tangential" if c.lens is LensModel.RADTAN else "equidistant",
+            "distortion_coefficients": coefficients,
             "rolling_shutter_readout_s": options.rolling_shutter_s,
             "exposure_s": options.exposure_s,
         },

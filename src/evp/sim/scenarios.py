@@ -7,7 +7,7 @@ mounted, the geodetic origin and which sensors the vehicle carries.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +21,7 @@ from evp.sim.motion import SplineMotion, car_attitude, heading_from_velocity, mu
 from evp.sim.sensors import BaroConfig, GpsConfig, ImuConfig, RangeConfig, WheelConfig, WifiConfig
 from evp.sim.textures import image_texture, marker_field_texture, procedural_texture
 from evp.sim.world import Scene, TexturedQuad, box_quads
-from evp.types import CameraModel
+from evp.types import CameraModel, LensModel
 
 # camera optical axes (columns x, y, z) in the body frame (x forward, y left, z up)
 DOWNWARD = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # image top = forward
@@ -32,6 +32,9 @@ CAMERA_PRESETS = {
     "phone_1280x720": "phone_1280x720",
     "car_640x194": "car_640x194",
 }
+# Kannala-Brandt k1..k4 of the simulated fisheye: TUM VI's cam0 (a 195-degree lens, Schubert et
+# al. 2018), a real lens's mild departure from the ideal equidistant projection
+FISHEYE_COEFFICIENTS = (0.0034823894022493434, 0.0007150348452162257, -0.0020532361418706202, 0.00020293673591811182)
 
 
 class SimOptions(BaseModel):
@@ -51,6 +54,10 @@ class SimOptions(BaseModel):
     gimbal: bool = Field(False, description="camera held level (nadir) by a gimbal instead of fixed to the body")
     relief: bool = Field(True, description="buildings and trees on the ground (drone scenarios)")
     distortion: bool = True
+    lens: str = Field("pinhole", pattern="^(pinhole|fisheye)$", description="pinhole (the preset's lens) or fisheye (equidistant, at the preset's resolution)")
+    fisheye_fov_deg: float = Field(
+        150.0, ge=120, le=180, description="fisheye: diagonal field of view in degrees (corner to corner, so every ray is within 90 degrees of the axis)"
+    )
     exposure_s: float = Field(0.004, ge=0, description="motion blur: the image integrates the motion over this time")
     gain_variation: float = Field(0.08, ge=0, le=0.9, description="relative exposure change amplitude")
     noise_sigma: float = Field(2.0, ge=0, description="read noise (grey levels); shot noise is added too")
@@ -101,9 +108,22 @@ def _camera(options: SimOptions, default: str) -> CameraModel:
     if name not in CAMERA_PRESETS:
         raise UsageError(f"unknown camera preset {name!r}; choose one of {', '.join(CAMERA_PRESETS)}")
     camera = load_profile(CAMERA_PRESETS[name])
+    if options.lens == "fisheye":
+        return fisheye_camera(camera.width, camera.height, options.fisheye_fov_deg, FISHEYE_COEFFICIENTS if options.distortion else (0.0,) * 4, name)
     if not options.distortion:
         camera = CameraModel(camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy, name=camera.name)
     return camera
+
+
+def fisheye_camera(width: int, height: int, diagonal_fov_deg: float, coefficients: tuple[float, ...], preset: str) -> CameraModel:
+    """An equidistant fisheye centred on the image whose corner pixels' outer corners see
+    ``diagonal_fov_deg`` / 2 off the axis: its focal length puts the half diagonal at theta_d."""
+    k1, k2, k3, k4 = coefficients
+    unit = CameraModel(width, height, 1.0, 1.0, 0.0, 0.0, k1, k2, k3=k3, k4=k4, lens=LensModel.EQUIDISTANT)
+    half = np.radians(diagonal_fov_deg / 2)
+    theta_d = unit.project(np.array([[np.sin(half), 0.0, np.cos(half)]]))[0, 0]  # on the unit focal length's image
+    focal = float(np.hypot(width, height) / 2 / theta_d)
+    return replace(unit, fx=focal, fy=focal, cx=(width - 1) / 2, cy=(height - 1) / 2, name=f"{preset}_fisheye{diagonal_fov_deg:g}")
 
 
 def _ground(options: SimOptions, default_kind: str, half_extent: float, metres_per_texel: float) -> TexturedQuad:

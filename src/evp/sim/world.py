@@ -1,9 +1,10 @@
 """Scenes of textured rectangles and an exact ray-casting renderer.
 
 Every surface (ground, walls, box faces, marker boards) is a textured rectangle. Each image pixel
-casts its exact ray (through the lens model, so distortion is rendered, not approximated), the
-nearest rectangle hit wins, and its texture is sampled there from a mip-map level that matches the
-pixel's footprint. With a rolling shutter every image row has its own camera pose.
+casts its exact ray (through the lens model, so distortion is rendered, not approximated; a
+fisheye's rays reach 90 degrees from the axis), the nearest rectangle hit wins, and its texture is
+sampled there from a mip-map level that matches the pixel's footprint. With a rolling shutter every
+image row has its own camera pose.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from evp.types import CameraModel
+from evp.types import CameraModel, LensModel
 
 
 @dataclass
@@ -101,22 +102,42 @@ def box_quads(centre, size, texture: np.ndarray, metres_per_texel: float, name: 
 
 
 class Renderer:
-    """Renders a scene for one camera; the per-pixel rays are computed once."""
+    """Renders a scene for one camera; the per-pixel rays are computed once.
+
+    Which quads a pose sees, and where, is found by clipping each to the viewing frustum: four
+    planes through the camera centre bounding every pixel's ray in the two view coordinates
+    (x / z, y / z). Along a straight edge in front of the camera each coordinate is monotone, so a
+    clipped polygon's extremes are at its corners and the per-row/column ranges of the pixel rays
+    give its exact image window. A pinhole's view coordinates are its normalised coordinates, on
+    whose z = 1 plane its rays are cast. A fisheye sees up to 90 degrees off the axis, where those
+    run to infinity: its rays are unit bearings and its view coordinates the angles
+    atan2(x, z), atan2(y, z), monotone in the same ratios and finite up to 90 degrees.
+    """
 
     def __init__(self, camera: CameraModel, scene: Scene):
         self.camera = camera
         self.scene = scene
         u, v = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
-        xy = camera.undistort_points(np.column_stack([u.ravel(), v.ravel()]))
-        rays = np.column_stack([xy, np.ones(len(xy))])
+        pixels = np.column_stack([u.ravel(), v.ravel()])
+        self._pinhole = camera.lens is LensModel.RADTAN
+        if self._pinhole:
+            xy = camera.undistort_points(pixels)
+            rays = np.column_stack([xy, np.ones(len(xy))])
+        else:
+            rays = camera.bearings(pixels)
+            xy = self._view_coordinates(rays)
         self._ray_norm = np.linalg.norm(rays, axis=1).reshape(camera.height, camera.width).astype(np.float32)
         self._rays = rays.reshape(camera.height, camera.width, 3).astype(np.float32)
         grid = xy.reshape(camera.height, camera.width, 2)
-        self._fov_lo = xy.min(axis=0)
-        self._fov_hi = xy.max(axis=0)
+        lo, hi = xy.min(axis=0), xy.max(axis=0)
         self._row_lo, self._row_hi = grid[..., 1].min(axis=1), grid[..., 1].max(axis=1)
-        lo, hi = self._fov_lo, self._fov_hi
-        normals = np.array([[1.0, 0.0, -lo[0]], [-1.0, 0.0, hi[0]], [0.0, 1.0, -lo[1]], [0.0, -1.0, hi[1]]])
+        if self._pinhole:  # x / z >= lo: x - lo z >= 0 ...
+            normals = np.array([[1.0, 0.0, -lo[0]], [-1.0, 0.0, hi[0]], [0.0, 1.0, -lo[1]], [0.0, -1.0, hi[1]]])
+        else:  # atan2(x, z) >= lo: x cos(lo) - z sin(lo) >= 0 ...
+            c, s = np.cos(np.r_[lo, hi]), np.sin(np.r_[lo, hi])
+            normals = np.array([[c[0], 0.0, -s[0]], [-c[2], 0.0, s[2]], [0.0, c[1], -s[1]], [0.0, -c[3], s[3]]])
+        # planes (normal, offset) for the exact clipping: in front of the camera, then the four sides
+        self._clip_planes = np.vstack([[0.0, 0.0, 1.0, -1e-6], np.column_stack([normals, np.zeros(4)])])
         self._frustum_normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
         self._sphere_centres = np.array([q.origin + 0.5 * (q.size_u * q.axis_u + q.size_v * q.axis_v) for q in scene.quads]).reshape(-1, 3)
         self._sphere_radii = np.array([0.5 * np.hypot(q.size_u, q.size_v) for q in scene.quads])
@@ -152,17 +173,17 @@ class Renderer:
     def _window(self, poses: list[np.ndarray], quad: TexturedQuad) -> tuple[int, int, int, int] | None:
         """Image rows/columns (r0, r1, c0, c1) the quad can cover, None when it is out of view.
 
-        The quad is clipped to the camera's viewing frustum (in undistorted normalised coordinates,
-        so lens distortion is accounted for exactly through the per-row/column ranges of the pixel
-        rays); the window is the union over the given poses (rolling shutter: first and last row).
+        The quad is clipped to the camera's viewing frustum (in view coordinates, so lens
+        distortion is accounted for exactly through the per-row/column ranges of the pixel rays);
+        the window is the union over the given poses (rolling shutter: first and last row).
         """
         corners = quad.origin + np.array([[0, 0], [quad.size_u, 0], [quad.size_u, quad.size_v], [0, quad.size_v]]) @ np.stack([quad.axis_u, quad.axis_v])
         window = None
         for T in poses:
-            polygon = _clip_to_frustum((corners - T[:3, 3]) @ T[:3, :3], self._fov_lo, self._fov_hi)
+            polygon = _clip_to_frustum((corners - T[:3, 3]) @ T[:3, :3], self._clip_planes)
             if polygon is None:
                 continue
-            xy = polygon[:, :2] / polygon[:, 2:3]
+            xy = polygon[:, :2] / polygon[:, 2:3] if self._pinhole else self._view_coordinates(polygon)
             rows = np.flatnonzero((self._row_hi >= xy[:, 1].min()) & (self._row_lo <= xy[:, 1].max()))
             cols = np.flatnonzero((self._col_hi >= xy[:, 0].min()) & (self._col_lo <= xy[:, 0].max()))
             if len(rows) == 0 or len(cols) == 0:
@@ -173,6 +194,11 @@ class Renderer:
             pad = max(2, self.camera.height // 20)
             window = (max(0, window[0] - pad), min(self.camera.height, window[1] + pad), max(0, window[2] - pad), min(self.camera.width, window[3] + pad))
         return window
+
+    @staticmethod
+    def _view_coordinates(points: np.ndarray) -> np.ndarray:
+        """A fisheye's view coordinates of (N, 3) camera-frame points: atan2(x, z), atan2(y, z)."""
+        return np.arctan2(points[:, :2], points[:, 2:3])
 
     def _shade(self, rays: np.ndarray, rotation: np.ndarray, centres: np.ndarray, windows: dict[int, tuple[int, int, int, int]]) -> np.ndarray:
         """Nearest hit per pixel. For a quad with frame M = [n u v], a ray c + t r hits the plane at
@@ -223,8 +249,9 @@ class Renderer:
         texel size matches the pixel footprint.
 
         A pixel covers about range x (1 / fx) / cos(incidence) metres of surface; with rays
-        normalised to z = 1 that is t |ray|^2 / (fx |ray . n|). The median over a sparse grid of the
-        quad's pixels picks the level.
+        normalised to z = 1 that is t |ray|^2 / (fx |ray . n|), the same with a fisheye's unit
+        bearings (its pixels span about 1 / fx radians wherever they are). The median over a sparse
+        grid of the quad's pixels picks the level.
         """
         step = max(1, int(np.sqrt(t.size / 2000)))
         sub = (slice(None, None, step), slice(None, None, step))
@@ -241,15 +268,9 @@ class Renderer:
         return cv2.remap(texture, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
 
 
-def _clip_to_frustum(polygon: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray | None:
-    """Sutherland-Hodgman clipping of a 3-D polygon (camera frame) to z > 0 and lo <= (x, y) / z <= hi."""
-    planes = [
-        np.array([0.0, 0.0, 1.0, -1e-6]),
-        np.array([1.0, 0.0, -lo[0], 0.0]),
-        np.array([-1.0, 0.0, hi[0], 0.0]),
-        np.array([0.0, 1.0, -lo[1], 0.0]),
-        np.array([0.0, -1.0, hi[1], 0.0]),
-    ]
+def _clip_to_frustum(polygon: np.ndarray, planes: np.ndarray) -> np.ndarray | None:
+    """Sutherland-Hodgman clipping of a 3-D polygon (camera frame) to the half-spaces
+    normal . p + offset >= 0 of the (normal, offset) rows of ``planes``."""
     points = list(polygon)
     for plane in planes:
         if not points:

@@ -9,7 +9,7 @@ import numpy as np
 
 from evp.optim.reprojection import pinhole_pixels
 from evp.slam.map import Map
-from evp.vision.orb import OrbExtractor
+from evp.vision.orb import MAX_RAY_ANGLE_DEG, OrbExtractor
 
 MIN_VIEW_COS = 0.5  # 60 degrees from the point's mean viewing direction
 
@@ -23,13 +23,19 @@ class Projection:
 
 
 def undistorted_bounds(extractor: OrbExtractor) -> tuple[float, float, float, float]:
-    """Box (u_min, v_min, u_max, v_max) of the image in undistorted pixel coordinates."""
+    """Box (u_min, v_min, u_max, v_max) of the image in undistorted pixel coordinates, cut to the
+    cone of rays features are kept in (``MAX_RAY_ANGLE_DEG``): a fisheye's border lies there
+    towards infinity, or has no undistorted coordinates at all beyond 90 degrees."""
     camera = extractor.camera
     w, h = camera.width - 1, camera.height - 1
     edge = np.linspace(0, 1, 21)
     border = np.r_[np.c_[edge * w, 0 * edge], np.c_[edge * w, 0 * edge + h], np.c_[0 * edge, edge * h], np.c_[0 * edge + w, edge * h]]
     un = camera.undistort_pixels(border)
-    return float(un[:, 0].min()), float(un[:, 1].min()), float(un[:, 0].max()), float(un[:, 1].max())
+    beyond = np.isnan(un)  # fisheye border rays 90 degrees or more off the axis: the cone bounds them
+    reach = np.tan(np.radians(MAX_RAY_ANGLE_DEG)) * np.array([camera.fx, camera.fy])
+    low = np.maximum(np.where(beyond, -np.inf, un).min(axis=0), [camera.cx, camera.cy] - reach)
+    high = np.minimum(np.where(beyond, np.inf, un).max(axis=0), [camera.cx, camera.cy] + reach)
+    return float(low[0]), float(low[1]), float(high[0]), float(high[1])
 
 
 def project_points(

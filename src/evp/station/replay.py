@@ -90,7 +90,7 @@ def _frames_by_start(
     start_index = -1
     for kind, log_time, item in recorded_frames(store, session_id, mcap_path):
         if kind == "camera":
-            camera = msg_to_camera(item)
+            camera = msg_to_camera(item, mcap_path)
             continue
         while start_index + 1 < len(starts) and starts[start_index + 1][0] <= log_time:
             start_index += 1

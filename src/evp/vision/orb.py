@@ -26,6 +26,12 @@ from evp.types import CameraModel
 
 CELL_PX = 30  # grid cell side on each pyramid level (ORB-SLAM's W)
 EDGE_PX = 19  # FAST/ORB border
+# Features are kept only where the ray is within this angle of the optical axis. All geometry works
+# in undistorted pinhole pixels, where a ray theta off the axis lands at f tan(theta) and a pixel of
+# detection noise on a fisheye grows by 1 / cos^2(theta) radially: 8.5 x at 70 degrees, unbounded at
+# 90, so such features cost more in outliers than they give. A pinhole sees less than this and
+# keeps all its features (measured on the rendered fisheye circle and drone flight: bench/camera_models.py).
+MAX_RAY_ANGLE_DEG = 70.0
 
 
 @dataclass
@@ -69,6 +75,23 @@ def _per_level(total: int, scale_factor: float, levels: int) -> np.ndarray:
     return share
 
 
+def _cone_masks(camera: CameraModel, scale_factors: np.ndarray) -> list[np.ndarray | None]:
+    """Per pyramid level, the detection mask of the pixels whose ray is within
+    ``MAX_RAY_ANGLE_DEG`` of the optical axis; None on every level when the whole image is (the
+    border holds the rays furthest off the axis)."""
+    min_cos = np.cos(np.radians(MAX_RAY_ANGLE_DEG))
+    w, h = camera.width - 1, camera.height - 1
+    edge = np.linspace(0, 1, 101)
+    border = np.r_[np.c_[edge * w, 0 * edge], np.c_[edge * w, 0 * edge + h], np.c_[0 * edge, edge * h], np.c_[0 * edge + w, edge * h]]
+    if not np.any(camera.bearings(border)[:, 2] < min_cos):
+        return [None] * len(scale_factors)
+    u, v = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
+    inside = ~(camera.bearings(np.column_stack([u.ravel(), v.ravel()]))[:, 2] < min_cos)
+    mask = inside.reshape(camera.height, camera.width).astype(np.uint8) * 255
+    sizes = [(round(camera.width / s), round(camera.height / s)) for s in scale_factors]  # as the pyramid's
+    return [cv2.resize(mask, size, interpolation=cv2.INTER_NEAREST) for size in sizes]
+
+
 class OrbExtractor:
     """``parallel`` runs the callables it is given at once and returns their results: two share the
     levels. None: every level in the caller's thread (same features)."""
@@ -99,6 +122,7 @@ class OrbExtractor:
             for n in retained
         ]
         self._parallel = parallel if levels > 1 else None
+        self._level_masks = _cone_masks(camera, self.scale_factors)
 
     def extract(self, grey: np.ndarray) -> Features:
         """In parallel, one task extracts level 0 at once while the other builds the rest of the
@@ -151,7 +175,7 @@ class OrbExtractor:
 
     def _extract_level(self, level: int, image: np.ndarray) -> tuple[np.ndarray, ...] | None:
         detector = self._level_detectors[level]
-        keypoints = detector.detect(image)
+        keypoints = detector.detect(image, self._level_masks[level])
         if not keypoints:
             return None
         scale = np.float32(self.scale_factors[level])  # float32 products, as OpenCV scales its keypoints

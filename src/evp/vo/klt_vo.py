@@ -18,7 +18,7 @@ from evp.estimator import Estimator
 from evp.geometry.transforms import se3, se3_inverse
 from evp.geometry.two_view import check_points, triangulate
 from evp.optim.reprojection import CHI2_2DOF
-from evp.types import CameraModel, Frame, PoseEstimate, TrackingState
+from evp.types import CameraModel, Frame, LensModel, PoseEstimate, TrackingState
 from evp.vision.images import grey_image
 
 LK_PARAMS = dict(winSize=(11, 11), maxLevel=3, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
@@ -47,6 +47,9 @@ class KltVisualOdometry(Estimator):
         self._velocity = np.eye(4)  # T_prev_cur of the last step (constant-velocity prior)
         self._frame_count = 0
         self._scale_depth = 1.0  # median depth the map is scaled to (kept across re-initialisation)
+        # OpenCV's pinhole PnP models radial-tangential lenses only: a fisheye's tracks go to it undistorted
+        self._pnp_radtan = camera.lens is LensModel.RADTAN
+        self._pnp_distortion = camera.distortion if self._pnp_radtan else np.zeros(5)
 
     # --- public ---------------------------------------------------------------------------
 
@@ -148,11 +151,12 @@ class KltVisualOdometry(Estimator):
             return self._lost(frame, grey)
         guess = se3_inverse(self._T_world_cam @ self._velocity)  # T_cam_world
         rvec, _ = cv2.Rodrigues(guess[:3, :3])
+        pixels = self._tracks[with_3d] if self._pnp_radtan else self.camera.undistort_pixels(self._tracks[with_3d])
         ok, rvec, tvec, inliers = cv2.solvePnPRansac(
             kf.points_world[with_3d],
-            self._tracks[with_3d],
+            pixels,
             self.camera.K,
-            self.camera.distortion,
+            self._pnp_distortion,
             rvec.copy(),
             guess[:3, 3].copy(),
             useExtrinsicGuess=True,
@@ -164,7 +168,7 @@ class KltVisualOdometry(Estimator):
         if not ok or inliers is None or len(inliers) < s.min_tracked_points:
             return self._lost(frame, grey)
         inliers = inliers.ravel()
-        rvec, tvec = self._refine_pose(kf.points_world[with_3d][inliers], self._tracks[with_3d][inliers], guess, rvec, tvec)
+        rvec, tvec = self._refine_pose(kf.points_world[with_3d][inliers], pixels[inliers], guess, rvec, tvec)
         if rvec is None:
             return self._lost(frame, grey)
         T_cam_world = se3(cv2.Rodrigues(rvec)[0], tvec.ravel())
@@ -226,7 +230,7 @@ class KltVisualOdometry(Estimator):
         drawn in parallel); starting the refinement from the deterministic guess makes replays
         identical. The RANSAC pose is the fallback when it fits the inliers better.
         """
-        K, dist = self.camera.K, self.camera.distortion
+        K, dist = self.camera.K, self._pnp_distortion
         candidates = []
         for start_r, start_t in ((cv2.Rodrigues(guess_T_cam_world[:3, :3])[0], guess_T_cam_world[:3, 3].reshape(3, 1)), (rvec, tvec)):
             r, t = cv2.solvePnPRefineLM(points, pixels, K, dist, start_r.copy(), start_t.copy())

@@ -27,7 +27,7 @@ from scipy.sparse.csgraph import connected_components
 
 from evp.optim.bundle_adjustment import BundleProblem, bundle_adjust
 from evp.optim.reprojection import CHI2_2DOF
-from evp.types import CameraModel
+from evp.types import CameraModel, LensModel
 
 LENS_STEPS = (-0.1, -0.05, 0.03)  # the search's first steps from the given lens: log focal length, k1, k2
 LENS_EVALUATIONS = 90  # bundle adjustments in the lens search (Toledo: the cost settles within 0.1 % by 70)
@@ -112,9 +112,10 @@ def _lens_and_poses(camera: CameraModel, poses_wc: np.ndarray, x: np.ndarray) ->
 def adjust_survey(camera: CameraModel, poses_wc: np.ndarray, tracks: SurveyTracks) -> tuple[np.ndarray, CameraModel]:
     """Adjusted camera-to-world poses (P, 4, 4) and the lens they were adjusted with: the given
     camera when it has a lens model, else the camera with the focal length, k1 and k2 that fit
-    the photos best. With fewer than ``MIN_TRACKS`` tracks the poses and the camera come back as
-    given."""
-    if tracks.num_tracks < MIN_TRACKS:
+    the photos best. With fewer than ``MIN_TRACKS`` tracks, or a fisheye lens (the observation
+    weights and the self-calibration are radial-tangential's), the poses and the camera come back
+    as given."""
+    if tracks.num_tracks < MIN_TRACKS or camera.lens is not LensModel.RADTAN:
         return poses_wc, camera
     if camera.has_distortion:
         return _adjust(camera, poses_wc, tracks)[0], camera

@@ -80,7 +80,7 @@ class RosbagReader:
             if kind in IMAGE_TYPES and connection.topic == image_topic:
                 times.append(stamp_seconds(msg.header))
             elif kind == CAMERA_INFO and dataset.camera is None:
-                dataset.camera = msg_to_camera(msg)
+                dataset.camera = msg_to_camera(msg, path)
             elif kind == IMU:
                 dataset.imu.append(msg_to_imu(msg))
             elif kind == NAVSAT:

@@ -435,7 +435,9 @@ class SlamSystem(Estimator):
         octave = last.features.octave[rows_last]
         for widen in (1.0, 2.0):
             radius = widen * self.settings.motion_search_radius_px * self.extractor.scale_factors[octave]
-            a, b = match_in_window(descriptors[front], uv[front], features.descriptors, features.un_px, radius[front], TH_HIGH, 0.9, octave[front], features.octave)
+            a, b = match_in_window(
+                descriptors[front], uv[front], features.descriptors, features.un_px, radius[front], TH_HIGH, 0.9, octave[front], features.octave
+            )
             keep = rotation_consistent(last.features.angle[rows_last][front][a], features.angle[b])
             a, b = a[keep], b[keep]
             if len(a) >= 20:

@@ -170,7 +170,7 @@ class Trajectory:
         return Trajectory(self.positions, self.quats_xyzw, stamps, self.name)
 
 
-class LensModel(enum.Enum):
+class LensModel(enum.StrEnum):
     """How a camera maps rays to pixels.
 
     ``RADTAN``: pinhole with OpenCV's radial-tangential distortion (k1 k2 p1 p2 k3), and k4 k5 k6 in
@@ -179,6 +179,9 @@ class LensModel(enum.Enum):
     Kalibr's ``equidistant`` and ORB-SLAM3's ``KannalaBrandt8``: a ray at angle theta from the
     optical axis lands at radius theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8) on
     the normalised image plane, which reaches 90 degrees and beyond where a pinhole cannot.
+
+    A string enum, so a camera written to JSON (the wire's config, the station's snapshot) carries
+    the name, as calibration files do.
     """
 
     RADTAN = "radtan"

@@ -184,3 +184,14 @@ def test_config_carries_the_one_camera_model_and_orb_settings():
         with pytest.raises(ProtocolError, match=words) as info:
             decode_text(json.dumps({"type": "config", "camera": fields}).replace("Infinity", "1e999"))
         assert info.value.code == "malformed"
+
+
+def test_a_fisheye_config_dumps_to_json_and_back():
+    """The station's snapshot is ``json.dumps`` of ``model_dump()`` (python mode): the lens must
+    leave as its name, not as an enum JSON cannot write, or every operator feed closes."""
+    from evp.types import CameraModel, LensModel
+
+    camera = CameraModel(640, 380, 210.0, 210.0, 319.5, 189.5, k1=0.003, k2=0.0007, lens=LensModel.EQUIDISTANT)
+    dumped = json.loads(json.dumps(Config(camera=camera).model_dump()))
+    assert dumped["camera"]["lens"] == "equidistant"
+    assert decode_text(json.dumps({"type": "config", "camera": dumped["camera"]})).camera == camera

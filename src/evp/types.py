@@ -360,6 +360,13 @@ class CameraModel:
             scale = np.where(theta_d > 0, np.sin(theta) / theta_d, 1.0)
         return np.column_stack([distorted * scale[:, None], np.cos(theta)])
 
+    def border_pixels(self, per_side: int) -> np.ndarray:
+        """(4 per_side, 2) pixel centres spaced along the image's four edges: where a lens's rays
+        are furthest off the axis (the extremes of its undistorted coordinates and ray angles)."""
+        w, h = self.width - 1, self.height - 1
+        edge = np.linspace(0.0, 1.0, per_side)
+        return np.r_[np.c_[edge * w, 0 * edge], np.c_[edge * w, 0 * edge + h], np.c_[0 * edge, edge * h], np.c_[0 * edge + w, edge * h]]
+
     def bearings(self, pixels: np.ndarray) -> np.ndarray:
         """Unit rays (N, 3) in the camera frame through (N, 2) distorted pixels; unlike normalised
         coordinates they stay finite for fisheye rays at 90 degrees from the axis and beyond."""

@@ -37,13 +37,22 @@ def test_ros_camera_info(tmp_path):
     assert camera.name == "narrow_stereo"
 
 
+def _orbslam_yaml(prefix: str, kind: str, intrinsics: tuple[float, ...], coefficients: dict[str, float], size: tuple[int, int]) -> str:
+    """An ORB-SLAM3 settings file: the camera's keys under ``prefix`` (ORB-SLAM3's Camera1 or the
+    older Camera), the size under Camera."""
+    lines = ["%YAML:1.0", f'Camera.type: "{kind}"']
+    lines += [f"{prefix}.{key}: {value}" for key, value in zip(("fx", "fy", "cx", "cy"), intrinsics, strict=True)]
+    lines += [f"{prefix}.{key}: {value}" for key, value in coefficients.items()]
+    lines += [f"Camera.width: {size[0]}", f"Camera.height: {size[1]}"]
+    return "\n".join(lines) + "\n"
+
+
 @pytest.mark.parametrize("prefix", ["Camera", "Camera1"])
 def test_orbslam_settings(tmp_path, prefix):
     path = tmp_path / "orb.yaml"
     path.write_text(
-        f'%YAML:1.0\nCamera.type: "PinHole"\n{prefix}.fx: 500.0\n{prefix}.fy: 501.0\n{prefix}.cx: 320.5\n{prefix}.cy: 240.5\n'
-        f"{prefix}.k1: 0.1\n{prefix}.k2: -0.2\n{prefix}.p1: 0.001\n{prefix}.p2: 0.002\nCamera.width: 640\nCamera.height: 480\n"
-        "Camera.fps: 30\nORBextractor.nFeatures: 1500\n"
+        _orbslam_yaml(prefix, "PinHole", (500.0, 501.0, 320.5, 240.5), {"k1": 0.1, "k2": -0.2, "p1": 0.001, "p2": 0.002}, (640, 480))
+        + "Camera.fps: 30\nORBextractor.nFeatures: 1500\n"
     )
     _check(read_camera(path))
 
@@ -110,11 +119,8 @@ def test_opencv_and_ros_equidistant(tmp_path, model):
 @pytest.mark.parametrize("prefix", ["Camera", "Camera1"])
 def test_orbslam3_kannala_brandt_is_a_fisheye(tmp_path, prefix):
     path = tmp_path / "orb.yaml"
-    path.write_text(
-        f'%YAML:1.0\nCamera.type: "KannalaBrandt8"\n{prefix}.fx: 190.97\n{prefix}.fy: 190.97\n{prefix}.cx: 254.93\n{prefix}.cy: 256.89\n'
-        f"{prefix}.k1: 0.0034823894022493434\n{prefix}.k2: 0.0007150348452162257\n{prefix}.k3: -0.0020532361418706202\n"
-        f"{prefix}.k4: 0.00020293673591811182\nCamera.width: 512\nCamera.height: 512\n"
-    )
+    coefficients = {"k1": 0.0034823894022493434, "k2": 0.0007150348452162257, "k3": -0.0020532361418706202, "k4": 0.00020293673591811182}
+    path.write_text(_orbslam_yaml(prefix, "KannalaBrandt8", (190.97, 190.97, 254.93, 256.89), coefficients, (512, 512)))
     camera = read_camera(path)
     assert camera.lens is LensModel.EQUIDISTANT
     assert camera.distortion.tolist() == [0.0034823894022493434, 0.0007150348452162257, -0.0020532361418706202, 0.00020293673591811182]

@@ -400,7 +400,8 @@ def road_drive(options: SimOptions) -> Scenario:
     pace = speed * (1.0 + 0.1 * np.sin(2 * np.pi * times / 25.0 + rng.uniform(0, 2 * np.pi)))
     start = 30.0  # metres of road behind the start: the first view is of road, not of its end
     travelled = start + np.concatenate([[0.0], np.cumsum((pace[1:] + pace[:-1]) / 2) * paths.SAMPLE_DT])
-    line = road.centreline(rng, travelled[-1] + 300.0, max(100.0, speed**2 / MAX_LATERAL_ACCEL_M_S2))
+    min_radius = max(100.0, speed**2 / MAX_LATERAL_ACCEL_M_S2)
+    line = road.centreline(rng, travelled[-1] + 300.0, min_radius)
     xy, yaw = line.at(travelled, -road.LANE_WIDTH_M / 2)
     positions = np.column_stack([xy, np.full(len(times), height)])
     acceleration = SplineMotion(times, positions, Rotation.identity(len(times)), ends="natural").state(times).acceleration
@@ -416,9 +417,7 @@ def road_drive(options: SimOptions) -> Scenario:
         Scene(quads, background=215),
         (49.0069, 8.4037, 115.0),
         ("imu", "gps", "wheel"),
-        notes=[
-            f"town road, {line.length:.0f} m with curves of radius >= {max(100.0, speed**2 / MAX_LATERAL_ACCEL_M_S2):.0f} m, {speed:.1f} m/s, camera {height} m up"
-        ],
+        notes=[f"town road, {line.length:.0f} m with curves of radius >= {min_radius:.0f} m, {speed:.1f} m/s, camera {height} m up"],
     )
 
 

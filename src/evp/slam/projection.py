@@ -27,10 +27,7 @@ def undistorted_bounds(extractor: OrbExtractor) -> tuple[float, float, float, fl
     cone of rays features are kept in (``MAX_RAY_ANGLE_DEG``): a fisheye's border lies there
     towards infinity, or has no undistorted coordinates at all beyond 90 degrees."""
     camera = extractor.camera
-    w, h = camera.width - 1, camera.height - 1
-    edge = np.linspace(0, 1, 21)
-    border = np.r_[np.c_[edge * w, 0 * edge], np.c_[edge * w, 0 * edge + h], np.c_[0 * edge, edge * h], np.c_[0 * edge + w, edge * h]]
-    un = camera.undistort_pixels(border)
+    un = camera.undistort_pixels(camera.border_pixels(21))
     beyond = np.isnan(un)  # fisheye border rays 90 degrees or more off the axis: the cone bounds them
     reach = np.tan(np.radians(MAX_RAY_ANGLE_DEG)) * np.array([camera.fx, camera.fy])
     low = np.maximum(np.where(beyond, -np.inf, un).min(axis=0), [camera.cx, camera.cy] - reach)

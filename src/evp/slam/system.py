@@ -76,7 +76,7 @@ class _InitReference:
         frame: the reference is about to be replaced, and the parallax it has now is the most it
         will reach. Slow starts (hand-held, hovering, drones climbing) keep most matches from
         frame to frame and wait for the full parallax; a fast forward motion or a low frame rate
-        loses most of them at each step."""
+        loses most of them at each step. Remembers ``matches`` as the next step's starting count."""
         expiring = matches * matches < needed * self.last_matches
         self.last_matches = matches
         return expiring
@@ -297,8 +297,8 @@ class SlamSystem(Estimator):
         )
         if result is None or result.good.sum() < s.init_min_triangulated:
             return None
-        if result.parallax_deg * np.sqrt(result.good.sum()) < s.init_min_parallax_deg * np.sqrt(s.init_min_triangulated):
-            return None  # an expiring reference's lower parallax must be made up by more points
+        if expiring and result.parallax_deg * np.sqrt(result.good.sum()) < s.init_min_parallax_deg * np.sqrt(s.init_min_triangulated):
+            return None  # the lower parallax must be made up by more points
         kf0 = self.map.add_keyframe(self.records[reference.record].timestamp, np.eye(4), ref, self._bow(ref))
         kf1 = self.map.add_keyframe(frame.timestamp, result.T21, features, self._bow(features))
         for a, b, position in zip(rows[result.good], cols[result.good], result.points[result.good], strict=True):

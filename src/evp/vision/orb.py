@@ -80,10 +80,7 @@ def _cone_masks(camera: CameraModel, scale_factors: np.ndarray) -> list[np.ndarr
     ``MAX_RAY_ANGLE_DEG`` of the optical axis; None on every level when the whole image is (the
     border holds the rays furthest off the axis)."""
     min_cos = np.cos(np.radians(MAX_RAY_ANGLE_DEG))
-    w, h = camera.width - 1, camera.height - 1
-    edge = np.linspace(0, 1, 101)
-    border = np.r_[np.c_[edge * w, 0 * edge], np.c_[edge * w, 0 * edge + h], np.c_[0 * edge, edge * h], np.c_[0 * edge + w, edge * h]]
-    if not np.any(camera.bearings(border)[:, 2] < min_cos):
+    if not np.any(camera.bearings(camera.border_pixels(101))[:, 2] < min_cos):
         return [None] * len(scale_factors)
     u, v = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
     inside = ~(camera.bearings(np.column_stack([u.ravel(), v.ravel()]))[:, 2] < min_cos)

@@ -40,7 +40,8 @@ class EurocReader:
 
     def detect(self, path: Path) -> bool:
         cam_dir = _mav0(path) / "cam0"
-        return path.is_dir() and ((cam_dir / "data.csv").is_file() or bool(_stamped_images(cam_dir / "data")))
+        images = cam_dir / "data"
+        return path.is_dir() and ((cam_dir / "data.csv").is_file() or (images.is_dir() and any(p.stem.isdigit() for p in images.glob("*.png"))))
 
     def read(self, path: Path) -> Dataset:
         mav0 = _mav0(path)

@@ -66,8 +66,19 @@ class RangeSample:
 
 
 @dataclass(frozen=True)
+class BeaconRange:
+    """Distance (m) from the vehicle to the fixed beacon ``beacon_id`` (radio time of flight, UWB);
+    the beacons' surveyed positions are in ``Dataset.beacons``."""
+
+    timestamp: float
+    beacon_id: str
+    range_m: float
+
+
+@dataclass(frozen=True)
 class WheelOdometry:
-    """Wheel speeds (m/s, one per wheel) and, when known, body forward speed and yaw rate."""
+    """Wheel speeds (m/s, one per wheel) and, when known, body forward speed and yaw rate (positive
+    turning left, counter-clockwise seen from above)."""
 
     timestamp: float
     wheel_speeds_m_s: tuple[float, ...]

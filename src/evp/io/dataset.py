@@ -11,9 +11,9 @@ import cv2
 import numpy as np
 
 from evp.errors import DatasetError
-from evp.types import BaroSample, CameraModel, Frame, GpsFix, ImuSample, RangeSample, Trajectory, WheelOdometry, WifiScan
+from evp.types import BaroSample, BeaconRange, CameraModel, Frame, GpsFix, ImuSample, RangeSample, Trajectory, WheelOdometry, WifiScan
 
-TelemetryRecord = ImuSample | GpsFix | BaroSample | WheelOdometry | WifiScan | RangeSample
+TelemetryRecord = ImuSample | GpsFix | BaroSample | WheelOdometry | WifiScan | RangeSample | BeaconRange
 
 
 @dataclass
@@ -36,8 +36,11 @@ class Dataset:
     wheel: list[WheelOdometry] = field(default_factory=list)
     wifi: list[WifiScan] = field(default_factory=list)
     ranges: list[RangeSample] = field(default_factory=list)
+    beacons: dict[str, tuple[float, float, float]] = field(default_factory=dict)  # surveyed position (m) per beacon id, in the ground truth's frame
+    beacon_ranges: list[BeaconRange] = field(default_factory=list)
     ground_truth: Trajectory | None = None
     ground_truth_note: str = ""
+    enu_origin: tuple[float, float, float] | None = None  # WGS-84 latitude, longitude (deg), altitude (m) of the ground truth's ENU frame, when georeferenced
     trajectories: dict[str, Trajectory] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)  # what the reader had to assume (nominal frame times...): commands print them
@@ -58,7 +61,7 @@ class Dataset:
 
     def telemetry(self) -> Iterator[TelemetryRecord]:
         """All non-image samples merged in time order."""
-        streams = [self.imu, self.gps, self.baro, self.wheel, self.wifi, self.ranges]
+        streams = [self.imu, self.gps, self.baro, self.wheel, self.wifi, self.ranges, self.beacon_ranges]
         return heapq.merge(*streams, key=lambda record: record.timestamp)
 
     def stream(self) -> Iterator[Frame | TelemetryRecord]:
@@ -75,6 +78,7 @@ class Dataset:
             "wheel": len(self.wheel),
             "wifi": len(self.wifi),
             "range": len(self.ranges),
+            "beacon": len(self.beacon_ranges),
         }
         return {name: count for name, count in counts.items() if count}
 

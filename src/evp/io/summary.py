@@ -20,12 +20,22 @@ def summarise(dataset: Dataset) -> dict:
         t = dataset.frame_times
         out.update(start_s=float(t[0]), duration_s=float(t[-1] - t[0]), rate_hz=_rate(t))
     sensors = {}
-    for name, attribute in (("imu", "imu"), ("gps", "gps"), ("baro", "baro"), ("wheel", "wheel"), ("wifi", "wifi"), ("range", "ranges")):
+    for name, attribute in (
+        ("imu", "imu"),
+        ("gps", "gps"),
+        ("baro", "baro"),
+        ("wheel", "wheel"),
+        ("wifi", "wifi"),
+        ("range", "ranges"),
+        ("beacon", "beacon_ranges"),
+    ):
         records = getattr(dataset, attribute)
         if records:
             stamps = np.array([r.timestamp for r in records])
             sensors[name] = {"samples": len(records), "rate_hz": _rate(stamps), "duration_s": float(stamps[-1] - stamps[0])}
     out["sensors"] = sensors
+    if dataset.beacons:
+        out["beacons"] = {name: list(position) for name, position in dataset.beacons.items()}
     if dataset.camera is not None:
         c = dataset.camera
         out["calibration"] = {
@@ -70,6 +80,8 @@ def describe(summary: dict) -> str:
     for name, s in summary["sensors"].items():
         rate = f"{s['rate_hz']:.1f} Hz" if s["rate_hz"] else "n/a"
         lines.append(f"  {name}: {s['samples']} samples, {rate}, {s['duration_s']:.2f} s")
+    for name, position in summary.get("beacons", {}).items():
+        lines.append(f"  beacon {name}: at ({', '.join(f'{v:.3f}' for v in position)}) m")
     c = summary["calibration"]
     if c:
         d = ", ".join(f"{v:g}" for v in c["distortion"])

@@ -5,6 +5,7 @@ Auto-detection asks every reader of ``READERS``; a path two of them claim is ref
 folder also holds trajectory files (its ground truth), which are not a dataset of their own.
 """
 
+from evp.io.readers.cmu_plaza import CmuPlazaReader
 from evp.io.readers.comma2k19 import Comma2k19Reader
 from evp.io.readers.euroc import EurocReader
 from evp.io.readers.exif_photos import ExifPhotoReader
@@ -12,6 +13,7 @@ from evp.io.readers.image_folder import ImageFolderReader
 from evp.io.readers.kitti import KittiReader
 from evp.io.readers.rosbag import RosbagReader
 from evp.io.readers.trajectory_files import TrajectoryFilesReader
+from evp.io.readers.tuc_labyrinth import TucLabyrinthReader
 from evp.io.readers.tum_rgbd import TumRgbdReader
 from evp.io.readers.video import VideoReader
 
@@ -20,6 +22,8 @@ READERS = (
     TumRgbdReader(),
     KittiReader(),
     Comma2k19Reader(),
+    CmuPlazaReader(),
+    TucLabyrinthReader(),
     RosbagReader(),
     VideoReader(),
     ImageFolderReader(),

@@ -1,11 +1,16 @@
 """comma2k19 segments converted to CSV (phone-class IMU, GNSS, CAN wheel speeds, INS ground truth).
 
 One common clock (``t_boot_s``). IMU axes are the device frame [forward, right, down]. No video.
+The ground truth's ENU frame has its origin at the first ground-truth position (the README); that
+origin, read from ``groundtruth_camera_ecef.csv``, is ``Dataset.enu_origin``, so GNSS fixes can be
+put in the same frame.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+
+import pymap3d
 
 from evp.io.dataset import Dataset
 from evp.io.text_tables import read_table
@@ -38,4 +43,8 @@ class Comma2k19Reader:
         if truth.is_file():
             dataset.ground_truth = read_trajectory(truth)
             dataset.ground_truth_note = "INS/GNSS post-processed camera pose (optical frame) in ENU"
+        truth_ecef = path / "groundtruth_camera_ecef.csv"
+        if truth_ecef.is_file():
+            first, _, _ = read_table(truth_ecef, min_columns=6)
+            dataset.enu_origin = tuple(float(v) for v in pymap3d.ecef2geodetic(*first[0, 3:6]))
         return dataset

@@ -81,7 +81,7 @@ def test_records_are_frozen_and_timestamp_first():
 
     from evp import types
 
-    for record in (types.Frame, types.ImuSample, types.GpsFix, types.BaroSample, types.WheelOdometry, types.WifiScan, types.PoseEstimate):
+    for record in (types.Frame, types.ImuSample, types.GpsFix, types.BaroSample, types.WheelOdometry, types.WifiScan, types.BeaconRange, types.PoseEstimate):
         assert fields(record)[0].name == "timestamp"
 
 

@@ -16,6 +16,8 @@ EXPECTED = {
     "comma2k19_example_segment_sensors": ("comma2k19", 0, 1200, None),
     "davis_slider_depth": ("image-folder", 87, 339, (180, 240)),
     "reference_trajectories": ("trajectories", 0, None, None),
+    "cmu_plaza1_wheel_odometry": ("cmu-plaza", 0, 9658, None),
+    "tuc_labyrinth_wheel_odometry": ("tuc-labyrinth", 0, 233, None),
 }
 
 

@@ -214,6 +214,13 @@ class NavigationSettings(_Section):
     non_holonomic_sigma_m_s: float = Field(0.1, gt=0, description="lateral and vertical body speed of a ground vehicle (non-holonomic constraint)")
     yaw_rate_sigma_rad_s: float = Field(0.01, gt=0)
     beacon_range_sigma_m: float = Field(0.1, gt=0)
+    vi_init_min_keyframes: int = Field(5, ge=3, description="visual-inertial initialisation: keyframes needed before gravity and scale are solved for")
+    vi_init_min_acceleration_std_m_s2: float = Field(
+        0.25, gt=0, description="visual-inertial initialisation: spread of the mean specific force over the keyframe intervals below which scale is not observable (VINS-Mono: 0.25)"
+    )
+    vi_init_max_gravity_error_m_s2: float = Field(
+        0.5, gt=0, description="visual-inertial initialisation: a solved gravity whose magnitude is further than this from g is refused (VINS-Mono: 0.5)"
+    )
 
 
 class MavlinkSettings(_Section):

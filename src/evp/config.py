@@ -207,7 +207,9 @@ class NavigationSettings(_Section):
     visual_attitude_sigma_rad: float = Field(0.01, gt=0, description="visual camera attitude noise (1 sigma)")
     baro_sigma_m: float = Field(0.5, gt=0, description="barometer altitude noise (1 sigma)")
     range_sigma_m: float = Field(0.05, gt=0, description="range finder noise (1 sigma)")
-    range_max_tilt_rad: float = Field(0.5, gt=0, lt=1.5, description="range finder readings at a larger tilt from the vertical are rejected (beam off the flat ground)")
+    range_max_tilt_rad: float = Field(
+        0.5, gt=0, lt=1.5, description="range finder readings at a larger tilt from the vertical are rejected (beam off the flat ground)"
+    )
     gps_default_sigma_m: float = Field(2.5, gt=0, description="GPS position noise when the fix gives no accuracy")
     gps_velocity_sigma_m_s: float = Field(0.3, gt=0, description="GPS velocity noise when the fix gives none")
     wheel_speed_sigma_m_s: float = Field(0.05, gt=0, description="wheel forward speed noise")
@@ -216,7 +218,9 @@ class NavigationSettings(_Section):
     beacon_range_sigma_m: float = Field(0.1, gt=0)
     vi_init_min_keyframes: int = Field(5, ge=3, description="visual-inertial initialisation: keyframes needed before gravity and scale are solved for")
     vi_init_min_acceleration_std_m_s2: float = Field(
-        0.25, gt=0, description="visual-inertial initialisation: spread of the mean specific force over the keyframe intervals below which scale is not observable (VINS-Mono: 0.25)"
+        0.25,
+        gt=0,
+        description="visual-inertial initialisation: spread of the mean specific force over the keyframe intervals below which scale is not observable (VINS-Mono: 0.25)",
     )
     vi_init_max_gravity_error_m_s2: float = Field(
         0.5, gt=0, description="visual-inertial initialisation: a solved gravity whose magnitude is further than this from g is refused (VINS-Mono: 0.5)"

@@ -223,7 +223,9 @@ class NavigationFilter:
         dt = imu.timestamp - previous.imu.timestamp
         if dt <= 0:
             return FilterWarning(
-                imu.timestamp, "imu_out_of_order", f"IMU sample at {imu.timestamp:.6f} s is not after the previous one ({previous.imu.timestamp:.6f} s): dropped"
+                imu.timestamp,
+                "imu_out_of_order",
+                f"IMU sample at {imu.timestamp:.6f} s is not after the previous one ({previous.imu.timestamp:.6f} s): dropped",
             )
         self._history.append(self._step(previous, imu))
         horizon = imu.timestamp - self.settings.history_s
@@ -258,7 +260,10 @@ class NavigationFilter:
         if index is None:
             oldest = self._history[0].imu.timestamp
             return Innovation(
-                t, measurement.kind, UpdateStatus.TOO_OLD, message=f"stamp {t:.6f} s is before the delayed horizon ({oldest:.6f} s, history_s {self.settings.history_s} s)"
+                t,
+                measurement.kind,
+                UpdateStatus.TOO_OLD,
+                message=f"stamp {t:.6f} s is before the delayed horizon ({oldest:.6f} s, history_s {self.settings.history_s} s)",
             )
         node = self._history[index]
         innovation, state, P = self._fuse(node, measurement)

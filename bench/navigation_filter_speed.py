@@ -23,8 +23,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' close
 from evp.config import NavigationSettings  # noqa: E402
 from evp.fusion.measurements import BaroAltitude  # noqa: E402
 from evp.fusion.navigation_filter import NavigationFilter  # noqa: E402
-from tests.fusion.test_navigation_filter import gps_fix, noisy_imu, visual_pose  # noqa: E402
 from tests.fusion.inertial_trajectory import SinusoidTrajectory  # noqa: E402
+from tests.fusion.test_navigation_filter import gps_fix, noisy_imu, visual_pose  # noqa: E402
 
 COLUMNS = [("operation", "{operation}"), ("calls", "{calls}"), ("mean (us)", "{mean_us:.0f}"), ("p95 (us)", "{p95_us:.0f}"), ("target (us)", "{target_us}")]
 TARGETS = {"propagate (one IMU sample)": 500, "update: visual pose": 2000}
@@ -68,7 +68,13 @@ def main() -> None:
     print(table.header())
     for operation, seconds in measure().items():
         us = np.asarray(seconds) * 1e6
-        record = {"operation": operation, "calls": len(us), "mean_us": float(us.mean()), "p95_us": float(np.percentile(us, 95)), "target_us": TARGETS.get(operation, "-")}
+        record = {
+            "operation": operation,
+            "calls": len(us),
+            "mean_us": float(us.mean()),
+            "p95_us": float(np.percentile(us, 95)),
+            "target_us": TARGETS.get(operation, "-"),
+        }
         print(table.add(record))
 
 

@@ -161,6 +161,72 @@ class MonitorSettings(_Section):
     outage_s: float = Field(2.0, gt=0, description="no fix for this long means GPS unavailable")
 
 
+class NavigationSettings(_Section):
+    """The navigation filter (``evp.fusion.navigation_filter``): an error-state Kalman filter driven
+    by the IMU, fusing visual poses, barometer, range finder, GPS, wheels and beacon ranges.
+
+    IMU noise densities default to EuRoC's ADIS16448 (its ``imu0/sensor.yaml``, Kalibr's
+    convention: continuous-time densities). A phone-class IMU's datasheet gives the same order
+    (Bosch BMI160: accelerometer 180 ug/sqrt(Hz) = 1.8e-3 m/s^2/sqrt(Hz), gyroscope 0.007 deg/s/sqrt(Hz)
+    = 1.2e-4 rad/s/sqrt(Hz)); Kalibr advises inflating datasheet values for real use, which the
+    filter's gate then tolerates less tightly.
+    """
+
+    gravity_m_s2: float = Field(9.80665, gt=0, description="standard gravity (CGPM 1901); the world is ENU, z up")
+    gyro_noise_density: float = Field(1.6968e-4, gt=0, description="gyroscope white noise, rad/s/sqrt(Hz) (EuRoC ADIS16448)")
+    accel_noise_density: float = Field(2.0e-3, gt=0, description="accelerometer white noise, m/s^2/sqrt(Hz) (EuRoC ADIS16448)")
+    gyro_bias_random_walk: float = Field(1.9393e-5, gt=0, description="gyroscope bias random walk, rad/s^2/sqrt(Hz) (EuRoC ADIS16448)")
+    accel_bias_random_walk: float = Field(3.0e-3, gt=0, description="accelerometer bias random walk, m/s^3/sqrt(Hz) (EuRoC ADIS16448)")
+    max_imu_gap_s: float = Field(
+        0.1, gt=0, description="a longer gap between IMU samples is still integrated as one step (rates interpolated across it) but reported (warning imu_gap)"
+    )
+    history_s: float = Field(
+        1.0,
+        gt=0,
+        description="delayed horizon: measurements up to this much older than the newest IMU sample are fused at their own time (PX4 EKF2 buffers ~0.5 s; SLAM answers can lag more)",
+    )
+    gate_probability: float = Field(
+        0.9999, gt=0.5, lt=1, description="chi-square gate: a measurement whose normalised innovation squared is beyond this quantile is rejected"
+    )
+    initial_position_sigma_m: float = Field(1.0, gt=0, description="initial position uncertainty (1 sigma, per axis)")
+    initial_velocity_sigma_m_s: float = Field(0.5, gt=0)
+    initial_attitude_sigma_rad: float = Field(0.05, gt=0, description="initial roll/pitch/yaw uncertainty")
+    initial_yaw_sigma_rad: float = Field(3.2, gt=0, description="initial heading uncertainty: unknown (about pi) until GPS or a map says")
+    initial_gyro_bias_sigma: float = Field(0.01, gt=0, description="rad/s")
+    initial_accel_bias_sigma: float = Field(0.2, gt=0, description="m/s^2")
+    initial_log_scale_sigma: float = Field(2.0, gt=0, description="visual map scale, natural log (2: a factor e^2 = 7.4 either way)")
+    initial_map_attitude_sigma_rad: float = Field(3.2, gt=0, description="visual map rotation in the world when (re)anchored")
+    initial_map_position_sigma_m: float = Field(10.0, gt=0, description="visual map origin in the world when (re)anchored")
+    initial_baro_bias_sigma_m: float = Field(5.0, gt=0, description="barometer bias after its first sample set it")
+    scale_known_sigma: float = Field(0.02, gt=0, description="the visual scale counts as known once its relative uncertainty (1 sigma) is below this")
+    log_scale_random_walk: float = Field(1e-3, ge=0, description="visual scale drift, 1/sqrt(s)")
+    map_attitude_random_walk: float = Field(1e-4, ge=0, description="visual map rotation drift, rad/sqrt(s)")
+    map_position_random_walk: float = Field(1e-2, ge=0, description="visual map origin drift, m/sqrt(s)")
+    baro_bias_random_walk: float = Field(0.05, ge=0, description="barometer bias drift (weather, temperature), m/sqrt(s)")
+    visual_position_sigma_m: float = Field(0.02, gt=0, description="visual camera position noise (1 sigma), in metres at the estimated scale")
+    visual_attitude_sigma_rad: float = Field(0.01, gt=0, description="visual camera attitude noise (1 sigma)")
+    baro_sigma_m: float = Field(0.5, gt=0, description="barometer altitude noise (1 sigma)")
+    range_sigma_m: float = Field(0.05, gt=0, description="range finder noise (1 sigma)")
+    range_max_tilt_rad: float = Field(
+        0.5, gt=0, lt=1.5, description="range finder readings at a larger tilt from the vertical are rejected (beam off the flat ground)"
+    )
+    gps_default_sigma_m: float = Field(2.5, gt=0, description="GPS position noise when the fix gives no accuracy")
+    gps_velocity_sigma_m_s: float = Field(0.3, gt=0, description="GPS velocity noise when the fix gives none")
+    wheel_speed_sigma_m_s: float = Field(0.05, gt=0, description="wheel forward speed noise")
+    non_holonomic_sigma_m_s: float = Field(0.1, gt=0, description="lateral and vertical body speed of a ground vehicle (non-holonomic constraint)")
+    yaw_rate_sigma_rad_s: float = Field(0.01, gt=0)
+    beacon_range_sigma_m: float = Field(0.1, gt=0)
+    vi_init_min_keyframes: int = Field(5, ge=3, description="visual-inertial initialisation: keyframes needed before gravity and scale are solved for")
+    vi_init_min_acceleration_std_m_s2: float = Field(
+        0.25,
+        gt=0,
+        description="visual-inertial initialisation: spread of the mean specific force over the keyframe intervals below which scale is not observable (VINS-Mono: 0.25)",
+    )
+    vi_init_max_gravity_error_m_s2: float = Field(
+        0.5, gt=0, description="visual-inertial initialisation: a solved gravity whose magnitude is further than this from g is refused (VINS-Mono: 0.5)"
+    )
+
+
 class MavlinkSettings(_Section):
     """Pose output to a flight controller (``evp serve --mavlink``)."""
 
@@ -200,6 +266,7 @@ class Settings(_Section):
     slam: SlamSettings = SlamSettings()
     align: AlignmentSettings = AlignmentSettings()
     gps_monitor: MonitorSettings = MonitorSettings()
+    navigation: NavigationSettings = NavigationSettings()
     eval: EvalSettings = EvalSettings()
     station: StationSettings = StationSettings()
     mavlink: MavlinkSettings = MavlinkSettings()

@@ -1,0 +1,364 @@
+"""Error-state extended Kalman filter for a vehicle carrying an IMU (strapdown INS), after
+ethzasl_msf (visual scale and the visual map's drift as states) and PX4 EKF2 (delayed horizon,
+innovation gates, resets).
+
+The IMU drives the state (:func:`NavigationFilter.propagate`); every other sensor is an update
+(:func:`NavigationFilter.update` with a record of :mod:`evp.fusion.measurements`), gated by a
+chi-square test on its normalised innovation squared (the filter's own guard; whether GPS is
+trusted at all is decided upstream by the seed-002 :class:`~evp.fusion.gps_monitor.GpsMonitor`).
+
+Delayed and out-of-order measurements: the filter keeps a time-ordered history of the last
+``history_s`` seconds, one node per IMU sample (the sample, the state and covariance after it,
+and the updates fused there). A measurement is fused at the node of the newest IMU sample at or
+before its stamp (so its time is rounded down by at most one IMU period: 5 ms at 200 Hz; EuRoC's
+camera stamps fall on IMU samples); when that is not the newest node the filter rolls back to it,
+fuses, and re-propagates the later IMU samples with their updates, so a late measurement gives
+the result it would have given in order. One older than the horizon is refused (``TOO_OLD``).
+
+A new visual map (SLAM reset) or a jump in the visual poses (relocalisation, loop closure) is
+told with :meth:`NavigationFilter.reset_visual_map`: the map-to-world pose (and, for a new map,
+its scale) is forgotten, the next visual pose re-anchors it (nominal set so that pose agrees with
+the current body estimate, covariance reset to the prior, then a normal update restores its
+correlation with the body pose), so the jump never enters the body state as motion.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.stats import chi2
+
+from evp.config import NavigationSettings
+from evp.fusion.measurements import BaroAltitude, GpsPosition, Measurement, Refusal, VisualPose
+from evp.fusion.nav_state import (
+    ACCEL_BIAS,
+    ATTITUDE,
+    BARO_BIAS,
+    ERROR_DIM,
+    GYRO_BIAS,
+    LOG_SCALE,
+    MAP_ATTITUDE,
+    MAP_POSE,
+    MAP_POSITION,
+    MAP_STATES,
+    POSITION,
+    VELOCITY,
+    NavState,
+    skew3,
+)
+from evp.fusion.strapdown import IMU_DIM, ImuNoise, imu_vectors, strapdown_step
+from evp.types import ImuSample
+
+
+class UpdateStatus(enum.Enum):
+    ACCEPTED = "accepted"
+    GATED = "gated"  # innovation beyond the chi-square gate
+    REFUSED = "refused"  # the reading itself is unusable (NaN, out of range, tilted)
+    TOO_OLD = "too_old"  # older than the delayed horizon, or than the first IMU sample
+    NO_IMU = "no_imu"  # no IMU sample yet: nothing to fuse it into
+
+
+@dataclass(frozen=True)
+class Innovation:
+    """What one update did: residual and its covariance ``S``, the normalised innovation squared
+    ``nis = r' S^-1 r`` against the gate's ``threshold``, and why it was not fused if it was not."""
+
+    timestamp: float
+    kind: str
+    status: UpdateStatus
+    residual: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    covariance: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    nis: float = float("nan")
+    threshold: float = float("nan")
+    message: str = ""
+
+    @property
+    def accepted(self) -> bool:
+        return self.status is UpdateStatus.ACCEPTED
+
+
+@dataclass(frozen=True)
+class FilterWarning:
+    """A problem with the IMU stream; kinds: imu_not_finite, imu_out_of_order, imu_gap."""
+
+    timestamp: float
+    kind: str
+    message: str
+
+
+@dataclass(frozen=True)
+class VisualMapReset:
+    """The visual map changed at ``timestamp``: a new map (``keep_scale=False``: its scale is
+    unknown again) or the same map corrected (relocalisation, loop closure: scale kept)."""
+
+    timestamp: float
+    keep_scale: bool
+    kind = "visual_map_reset"
+
+
+@dataclass(frozen=True)
+class NavigationOutput:
+    """The filter's answer at ``timestamp``: metric, gravity-aligned (ENU once georeferenced).
+
+    ``covariance`` is 6x6 over the output frame's position and its attitude as a small world-frame
+    rotation vector (x, y, z; about the world axes, so the last is the heading), the order of
+    :class:`evp.types.PoseEstimate`. ``T_world_cam`` is None unless the camera extrinsic is given.
+    """
+
+    timestamp: float
+    T_world_body: np.ndarray
+    T_world_cam: np.ndarray | None
+    velocity: np.ndarray
+    covariance: np.ndarray
+    scale: float  # metres per visual map unit
+    scale_sigma: float  # relative, 1 sigma
+    gyro_bias: np.ndarray
+    accel_bias: np.ndarray
+    baro_bias: float
+    scale_known: bool
+    georeferenced: bool
+
+
+_DIAGONAL = np.diag_indices(ERROR_DIM)
+
+
+@dataclass
+class _Node:
+    imu: ImuSample
+    state: NavState
+    covariance: np.ndarray
+    events: list = field(default_factory=list)  # accepted measurements and map resets, in order
+
+
+def initial_covariance(s: NavigationSettings) -> np.ndarray:
+    """The prior covariance from the settings' initial sigmas (heading: ``initial_yaw_sigma_rad``
+    on the body attitude's component along gravity, which for a levelled start is body z)."""
+    sigmas = np.zeros(ERROR_DIM)
+    sigmas[POSITION] = s.initial_position_sigma_m
+    sigmas[VELOCITY] = s.initial_velocity_sigma_m_s
+    sigmas[ATTITUDE] = [s.initial_attitude_sigma_rad, s.initial_attitude_sigma_rad, s.initial_yaw_sigma_rad]
+    sigmas[GYRO_BIAS] = s.initial_gyro_bias_sigma
+    sigmas[ACCEL_BIAS] = s.initial_accel_bias_sigma
+    sigmas[LOG_SCALE] = s.initial_log_scale_sigma
+    sigmas[MAP_ATTITUDE] = s.initial_map_attitude_sigma_rad
+    sigmas[MAP_POSITION] = s.initial_map_position_sigma_m
+    sigmas[BARO_BIAS] = s.initial_baro_bias_sigma_m
+    return np.diag(sigmas**2)
+
+
+class NavigationFilter:
+    """``propagate(imu)`` per IMU sample, ``update(measurement)`` per other reading,
+    ``reset_visual_map(t, keep_scale)`` when the visual map jumps, ``output()`` for the answer."""
+
+    def __init__(self, state: NavState, settings: NavigationSettings | None = None, covariance: np.ndarray | None = None):
+        self.settings = settings or NavigationSettings()
+        s = self.settings
+        self._prior_variances = np.diag(initial_covariance(s))
+        self._initial = (state, np.diag(self._prior_variances) if covariance is None else np.array(covariance, float))
+        imu_noise = ImuNoise(s.gyro_noise_density, s.accel_noise_density, s.gyro_bias_random_walk, s.accel_bias_random_walk)
+        self._noise_per_second = np.zeros(ERROR_DIM)  # process noise variance per second, per error state
+        self._noise_per_second[:IMU_DIM] = imu_noise.variances_per_second()
+        self._noise_per_second[LOG_SCALE] = s.log_scale_random_walk**2
+        self._noise_per_second[MAP_ATTITUDE] = s.map_attitude_random_walk**2
+        self._noise_per_second[MAP_POSITION] = s.map_position_random_walk**2
+        self._noise_per_second[BARO_BIAS] = s.baro_bias_random_walk**2
+        self._history: list[_Node] = []
+        self._thresholds: dict[int, float] = {}
+
+    # --- state ---------------------------------------------------------------------------------
+
+    @property
+    def state(self) -> NavState:
+        return self._history[-1].state if self._history else self._initial[0]
+
+    @property
+    def covariance(self) -> np.ndarray:
+        return self._history[-1].covariance if self._history else self._initial[1]
+
+    def output(self, T_body_cam: np.ndarray | None = None) -> NavigationOutput:
+        """The newest state as a pose with its 6x6 covariance (of the camera when ``T_body_cam``
+        is given, else of the body)."""
+        x, P = self.state, self.covariance
+        T_world_body = np.eye(4)
+        T_world_body[:3, :3], T_world_body[:3, 3] = x.R_world_body, x.position
+        J = np.zeros((6, ERROR_DIM))  # output error (position, world rotation) from the error state
+        J[0:3, POSITION] = np.eye(3)
+        J[3:6, ATTITUDE] = x.R_world_body
+        T_world_cam = None
+        if T_body_cam is not None:
+            T_world_cam = T_world_body @ T_body_cam
+            J[0:3, ATTITUDE] = -x.R_world_body @ skew3(T_body_cam[:3, 3])
+        scale_sigma = math.sqrt(P[LOG_SCALE, LOG_SCALE])  # d(log s) is the relative error of s
+        return NavigationOutput(
+            timestamp=x.timestamp,
+            T_world_body=T_world_body,
+            T_world_cam=T_world_cam,
+            velocity=x.velocity.copy(),
+            covariance=J @ P @ J.T,
+            scale=x.scale,
+            scale_sigma=scale_sigma,
+            gyro_bias=x.gyro_bias.copy(),
+            accel_bias=x.accel_bias.copy(),
+            baro_bias=x.baro_bias,
+            scale_known=x.map_anchored and scale_sigma < self.settings.scale_known_sigma,
+            georeferenced=x.georeferenced,
+        )
+
+    # --- IMU -----------------------------------------------------------------------------------
+
+    def propagate(self, imu: ImuSample) -> FilterWarning | None:
+        """Integrate one IMU sample. A sample that cannot be used is dropped with a warning
+        (not finite, or not after the previous one); a long gap is integrated with one."""
+        gyro, accel = imu_vectors(imu)
+        if not (math.isfinite(imu.timestamp) and np.isfinite(gyro).all() and np.isfinite(accel).all()):
+            return FilterWarning(imu.timestamp, "imu_not_finite", f"IMU sample at {imu.timestamp} holds NaN or infinite values: dropped")
+        if not self._history:
+            state, P = self._initial
+            self._history.append(_Node(imu, replace(state, timestamp=imu.timestamp), P))
+            return None
+        previous = self._history[-1]
+        dt = imu.timestamp - previous.imu.timestamp
+        if dt <= 0:
+            return FilterWarning(
+                imu.timestamp,
+                "imu_out_of_order",
+                f"IMU sample at {imu.timestamp:.6f} s is not after the previous one ({previous.imu.timestamp:.6f} s): dropped",
+            )
+        self._history.append(self._step(previous, imu))
+        horizon = imu.timestamp - self.settings.history_s
+        drop = 0
+        while drop < len(self._history) - 1 and self._history[drop + 1].imu.timestamp <= horizon:
+            drop += 1
+        del self._history[:drop]
+        if dt > self.settings.max_imu_gap_s:
+            return FilterWarning(imu.timestamp, "imu_gap", f"{dt:.3f} s without IMU samples before {imu.timestamp:.6f} s: integrated as one step")
+        return None
+
+    def _step(self, previous: _Node, imu: ImuSample) -> _Node:
+        dt = imu.timestamp - previous.imu.timestamp
+        state, phi = strapdown_step(previous.state, previous.imu, imu, self.settings.gravity_m_s2)
+        P0 = previous.covariance
+        P = np.empty_like(P0)
+        P[:IMU_DIM, :IMU_DIM] = phi @ P0[:IMU_DIM, :IMU_DIM] @ phi.T
+        P[:IMU_DIM, IMU_DIM:] = phi @ P0[:IMU_DIM, IMU_DIM:]
+        P[IMU_DIM:, :IMU_DIM] = P[:IMU_DIM, IMU_DIM:].T
+        P[IMU_DIM:, IMU_DIM:] = P0[IMU_DIM:, IMU_DIM:]
+        P[_DIAGONAL] += self._noise_per_second * dt
+        return _Node(imu, state, P)
+
+    # --- updates -------------------------------------------------------------------------------
+
+    def update(self, measurement: Measurement) -> Innovation:
+        """Fuse one measurement at its own time (see the module docstring)."""
+        t = measurement.timestamp
+        if not self._history:
+            return Innovation(t, measurement.kind, UpdateStatus.NO_IMU, message="no IMU sample yet")
+        index = self._node_index(t)
+        if index is None:
+            oldest = self._history[0].imu.timestamp
+            return Innovation(
+                t,
+                measurement.kind,
+                UpdateStatus.TOO_OLD,
+                message=f"stamp {t:.6f} s is before the delayed horizon ({oldest:.6f} s, history_s {self.settings.history_s} s)",
+            )
+        node = self._history[index]
+        innovation, state, P = self._fuse(node, measurement)
+        if innovation.accepted:
+            node.state, node.covariance = state, P
+            node.events.append(measurement)
+            self._replay(index)
+        return innovation
+
+    def reset_visual_map(self, timestamp: float, keep_scale: bool) -> bool:
+        """The visual map changed at ``timestamp`` (see :class:`VisualMapReset`); False when the
+        stamp is outside the history (no IMU yet, or older than the horizon)."""
+        index = self._node_index(timestamp) if self._history else None
+        if index is None:
+            return False
+        node = self._history[index]
+        reset = VisualMapReset(timestamp, keep_scale)
+        node.state, node.covariance = self._forget_map(node.state, node.covariance, reset)
+        node.events.append(reset)
+        self._replay(index)
+        return True
+
+    def _node_index(self, t: float) -> int | None:
+        """The newest node at or before ``t``; None when ``t`` is before the oldest (or not finite)."""
+        if not math.isfinite(t) or t < self._history[0].imu.timestamp:
+            return None
+        index = len(self._history) - 1
+        while self._history[index].imu.timestamp > t:
+            index -= 1
+        return index
+
+    def _replay(self, index: int) -> None:
+        """Re-propagate the nodes after ``index`` from its corrected state, re-applying their events."""
+        for i in range(index + 1, len(self._history)):
+            node = self._step(self._history[i - 1], self._history[i].imu)
+            node.events = self._history[i].events
+            for event in node.events:
+                if isinstance(event, VisualMapReset):
+                    node.state, node.covariance = self._forget_map(node.state, node.covariance, event)
+                else:
+                    _, node.state, node.covariance = self._fuse(node, event, gate=False)
+            self._history[i] = node
+
+    def _forget_map(self, x: NavState, P: np.ndarray, reset: VisualMapReset) -> tuple[NavState, np.ndarray]:
+        return replace(x, map_anchored=False), self._to_prior(P, MAP_POSE if reset.keep_scale else MAP_STATES)
+
+    def _to_prior(self, P: np.ndarray, states: np.ndarray) -> np.ndarray:
+        """``P`` with ``states`` uncorrelated and at their prior variance."""
+        P = P.copy()
+        P[states, :] = 0.0
+        P[:, states] = 0.0
+        P[states, states] = self._prior_variances[states]
+        return P
+
+    def _fuse(self, node: _Node, measurement: Measurement, gate: bool = True) -> tuple[Innovation, NavState, np.ndarray]:
+        """The innovation of ``measurement`` at ``node`` and, when accepted, the corrected state
+        and covariance (Joseph form, symmetrised)."""
+        x, P = node.state, node.covariance
+        if isinstance(measurement, VisualPose) and not x.map_anchored:
+            x, P = self._anchor_map(x, P, measurement)
+        elif isinstance(measurement, BaroAltitude) and not x.baro_initialised and math.isfinite(measurement.altitude_m):
+            x = replace(x, baro_bias=measurement.altitude_m - x.position[2], baro_initialised=True)
+        lin = measurement.linearise(x, imu_vectors(node.imu)[0], self.settings)
+        if isinstance(lin, Refusal):
+            return Innovation(measurement.timestamp, measurement.kind, UpdateStatus.REFUSED, message=lin.reason), x, P
+        H, r = lin.jacobian, lin.residual
+        PHt = P @ H.T
+        S = H @ PHt + lin.noise
+        S_inv = np.linalg.inv(S)
+        nis = float(r @ S_inv @ r)
+        threshold = self._threshold(len(r))
+        status = UpdateStatus.ACCEPTED if (nis <= threshold or not gate) else UpdateStatus.GATED
+        innovation = Innovation(measurement.timestamp, measurement.kind, status, r, S, nis, threshold)
+        if status is not UpdateStatus.ACCEPTED:
+            return replace(innovation, message=f"normalised innovation squared {nis:.1f} > gate {threshold:.1f}"), node.state, node.covariance
+        K = PHt @ S_inv
+        I_KH = np.eye(ERROR_DIM) - K @ H
+        P = I_KH @ P @ I_KH.T + K @ lin.noise @ K.T
+        P = 0.5 * (P + P.T)
+        x = x.inject(K @ r)
+        if isinstance(measurement, GpsPosition):
+            x = replace(x, georeferenced=True)
+        return innovation, x, P
+
+    def _anchor_map(self, x: NavState, P: np.ndarray, pose: VisualPose) -> tuple[NavState, np.ndarray]:
+        """Set the visual map's world pose so that ``pose`` agrees with the current body estimate;
+        its covariance is the prior (no correlation), which the update that follows corrects."""
+        R_bc, t_bc = pose.T_body_cam[:3, :3], pose.T_body_cam[:3, 3]
+        R_world_map = x.R_world_body @ R_bc @ pose.T_map_cam[:3, :3].T
+        t_world_map = x.position + x.R_world_body @ t_bc - x.scale * R_world_map @ pose.T_map_cam[:3, 3]
+        if not np.isfinite(R_world_map).all() or not np.isfinite(t_world_map).all():
+            return x, P
+        return replace(x, R_world_map=R_world_map, t_world_map=t_world_map, map_anchored=True), self._to_prior(P, MAP_POSE)
+
+    def _threshold(self, dof: int) -> float:
+        if dof not in self._thresholds:
+            self._thresholds[dof] = float(chi2.ppf(self.settings.gate_probability, dof))
+        return self._thresholds[dof]

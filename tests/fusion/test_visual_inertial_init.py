@@ -1,0 +1,55 @@
+"""Visual-inertial initialisation on exact synthetic keyframes and IMU."""
+
+import numpy as np
+
+from evp.fusion.nav_state import so3_log
+from evp.fusion.navigation_filter import NavigationFilter
+from evp.fusion.visual_inertial_init import initialise_visual_inertial
+from tests.fusion.inertial_trajectory import GRAVITY, SinusoidTrajectory, imu_times
+from tests.fusion.test_navigation_filter import MAP_SCALE, R_WORLD_MAP, T_BODY_CAM, T_WORLD_MAP
+
+GYRO_BIAS = np.array([0.003, -0.002, 0.004])
+
+
+def keyframes(trajectory, times):
+    out = []
+    for t in times:
+        T_world_cam = trajectory.pose(t) @ T_BODY_CAM
+        T = np.eye(4)
+        T[:3, :3] = R_WORLD_MAP.T @ T_world_cam[:3, :3]
+        T[:3, 3] = R_WORLD_MAP.T @ (T_world_cam[:3, 3] - T_WORLD_MAP) / MAP_SCALE
+        out.append((float(t), T))
+    return out
+
+
+def test_gravity_scale_velocity_and_gyro_bias_are_recovered():
+    trajectory = SinusoidTrajectory()
+    imu = trajectory.imu(imu_times(4.0), GYRO_BIAS)
+    frames = keyframes(trajectory, np.arange(0.0, 4.0001, 0.25))
+    result = initialise_visual_inertial(frames, imu, T_BODY_CAM)
+    assert result.observable, result.reason
+    assert abs(result.scale / MAP_SCALE - 1.0) < 0.01
+    gravity_map = R_WORLD_MAP.T @ [0.0, 0.0, -GRAVITY]
+    assert np.degrees(np.arccos(result.gravity_map @ gravity_map / GRAVITY**2)) < 0.5
+    assert np.linalg.norm(result.gyro_bias - GYRO_BIAS) < 1e-4
+    assert np.linalg.norm(result.velocities_map[-1] - R_WORLD_MAP.T @ trajectory.velocity(4.0)) < 0.02
+    # the filter starts from it: gravity-aligned, at the estimated scale, with the map anchored
+    start = result.nav_state(4.0, frames[-1][1], T_BODY_CAM, result.velocities_map[-1])
+    tilt = so3_log(start.R_world_body @ trajectory.rotation(4.0).T)[:2]  # heading is the map's
+    assert np.degrees(np.linalg.norm(tilt)) < 0.5 and start.map_anchored
+    assert abs(NavigationFilter(start).output().scale - result.scale) < 1e-12
+
+
+def test_constant_velocity_is_not_observable():
+    trajectory = SinusoidTrajectory(amplitude=(0.0, 0.0, 0.0), cruise=(1.0, 0.5, 0.2))  # rotating, not accelerating
+    result = initialise_visual_inertial(keyframes(trajectory, np.arange(0.0, 4.0001, 0.25)), trajectory.imu(imu_times(4.0)), T_BODY_CAM)
+    assert not result.observable and "too little acceleration" in result.reason
+    assert np.isnan(result.scale)
+
+
+def test_too_few_keyframes_or_no_imu_is_not_observable():
+    trajectory = SinusoidTrajectory()
+    frames = keyframes(trajectory, [0.0, 0.5, 1.0])
+    assert "too few keyframes" in initialise_visual_inertial(frames, trajectory.imu(imu_times(1.0)), T_BODY_CAM).reason
+    frames = keyframes(trajectory, np.arange(0.0, 4.0001, 0.25))
+    assert "do not span" in initialise_visual_inertial(frames, trajectory.imu(imu_times(2.0)), T_BODY_CAM).reason

@@ -31,6 +31,7 @@ CAMERA_PRESETS = {
     "global_752x480": "global_shutter_752x480",
     "phone_1280x720": "phone_1280x720",
     "car_640x194": "car_640x194",
+    "car_1241x376": "car_1241x376",
 }
 # Kannala-Brandt k1..k4 of the simulated fisheye: TUM VI's cam0 (a 195-degree lens, Schubert et
 # al. 2018), a real lens's mild departure from the ideal equidistant projection
@@ -390,9 +391,9 @@ MAX_LATERAL_ACCEL_M_S2 = 3.0  # a comfortable curve for a driver: the road's tig
 def road_drive(options: SimOptions) -> Scenario:
     """A car phone on the windscreen (camera forward, 1.5 m up) driving the right lane of a curving
     town road at 20 m/s (10-30), past buildings, trees and parked cars, with hills far away; the
-    speed wanders by 10 %. KITTI-like camera (car_640x194); IMU, GPS and wheel speed (OBD)."""
+    speed wanders by 10 %. KITTI's camera (car_1241x376); IMU, GPS and wheel speed (OBD)."""
     rng = np.random.default_rng(options.seed)
-    camera = _camera(options, "car_640x194")
+    camera = _camera(options, "car_1241x376")
     speed = options.speed_m_s or 20.0
     duration = options.duration_s or 60.0
     height = options.altitude_m or 1.5

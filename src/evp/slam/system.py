@@ -48,6 +48,16 @@ RELOCALISATION_CANDIDATES = 5  # keyframes verified by PnP per lost frame, best 
 # A hand-held start turning on the spot (MH01) loses matches fast too; its 1.7-degree, 82-point
 # candidate failed within 10 frames, where KITTI at 5 Hz starts on 2.4 degrees and 181 points.
 EXPIRING_MIN_PARALLAX_DEG = 1.0
+# Features per frame while starting and while starved, in multiples of orb.n_features (at most 3:
+# OrbExtractor keeps 3 times its quota of corners). A two-view start needs hundreds of matches
+# that survive the parallax it waits for, and a forward drive loses most of them at every frame
+# (ORB-SLAM's monocular start takes 5 times its features; 3 here delayed the rendered circle's
+# hovering start from 2 s to 7 s). Tracking keeps the budget until its inliers, scaled to the
+# configured count, are over STARVED_INLIER_FACTOR times slam.min_tracked_inliers (the line where
+# it is lost), and takes it again below: a map thinning out (fast forward motion, a low frame
+# rate, dropped frames) would keep fewer inliers at each frame until it is lost.
+STARVED_FEATURE_BUDGET = 2
+STARVED_INLIER_FACTOR = 3
 
 
 @dataclass
@@ -129,6 +139,7 @@ class SlamSystem(Estimator):
         self._last_kf_frame = 0
         self._last_reloc_frame = -(10**9)
         self._last_inliers = 0
+        self._feature_budget = STARVED_FEATURE_BUDGET
         self._globally_adjusted = False
 
     # --- public ---------------------------------------------------------------------------
@@ -138,7 +149,7 @@ class SlamSystem(Estimator):
         self.settle()
         self._frame_count += 1
         start = time.perf_counter()
-        features = self.extractor.extract(grey)
+        features = self.extractor.extract(grey, self._feature_budget)
         self.extraction_ms.append((time.perf_counter() - start) * 1000.0)
         # a frame is handled under the map lock, its answer too: the answer's record relates the
         # pose to its reference keyframe as tracked, before mapping can move that keyframe
@@ -353,6 +364,7 @@ class SlamSystem(Estimator):
         self.state = TrackingState.NOT_INITIALIZED
         self._init_reference = None
         self._last = None
+        self._feature_budget = STARVED_FEATURE_BUDGET
         self.reset_counter += 1
 
     # --- tracking -------------------------------------------------------------------------
@@ -385,10 +397,22 @@ class SlamSystem(Estimator):
         self._velocity = T_cw @ se3_inverse(self._last.T_cw)
         self._velocity_dt = timestamp - self._last.timestamp
         self._last_inliers = inliers
+        self._budget_features(inliers, len(features))
         self._last = _TrackedFrame(timestamp, features, T_cw, matched.copy())
         if self._need_keyframe(inliers):
             self._insert_keyframe(timestamp, features, T_cw, matched)
         return T_cw
+
+    def _budget_features(self, inliers: int, features: int) -> None:
+        """More features for the next frame while tracking is starved (they multiply what it
+        can match and what its keyframe triangulates); back to the configured count once the
+        inliers, scaled to that count, are over the starved line (a small image that has fewer
+        corners than the budget goes back at once)."""
+        line = STARVED_INLIER_FACTOR * self.settings.min_tracked_inliers
+        if inliers < line:
+            self._feature_budget = STARVED_FEATURE_BUDGET
+        elif inliers * min(1.0, self.extractor.settings.n_features / max(features, 1)) > line:
+            self._feature_budget = 1
 
     def _follow_reference_keyframe(self) -> None:
         """The last frame moves with its reference keyframe (ORB-SLAM's UpdateLastFrame): since

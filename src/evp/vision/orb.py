@@ -121,8 +121,10 @@ class OrbExtractor:
         self._parallel = parallel if levels > 1 else None
         self._level_masks = _cone_masks(camera, self.scale_factors)
 
-    def extract(self, grey: np.ndarray) -> Features:
-        """In parallel, one task extracts level 0 at once while the other builds the rest of the
+    def extract(self, grey: np.ndarray, budget: int = 1) -> Features:
+        """``budget`` times the configured features (1 to 3: the detectors keep 3 times the quota).
+
+        In parallel, one task extracts level 0 at once while the other builds the rest of the
         pyramid, queueing each level as it is built; then both take the next level queued, largest
         first, until none is (the per-level cost is not proportional to the area, so a fixed split
         left one thread waiting 4 ms on MH01). Which task takes which level changes nothing found."""
@@ -131,17 +133,17 @@ class OrbExtractor:
         if self._parallel is None:
             waiting = deque([0])
             self._build_pyramid(pyramid, waiting)
-            self._extract_queued(waiting, pyramid, found)
+            self._extract_queued(waiting, pyramid, found, budget)
         else:
             waiting = deque()
 
             def build_then_extract() -> None:
                 self._build_pyramid(pyramid, waiting)
-                self._extract_queued(waiting, pyramid, found)
+                self._extract_queued(waiting, pyramid, found, budget)
 
             def first_level_then_extract() -> None:
-                found[0] = self._extract_level(0, grey)
-                self._extract_queued(waiting, pyramid, found)
+                found[0] = self._extract_level(0, grey, budget)
+                self._extract_queued(waiting, pyramid, found, budget)
 
             self._parallel(build_then_extract, first_level_then_extract)
         parts = [found[level] for level in sorted(found) if found[level] is not None]
@@ -161,23 +163,23 @@ class OrbExtractor:
             pyramid[level] = cv2.resize(pyramid[level - 1], size, interpolation=cv2.INTER_LINEAR_EXACT)
             built.append(level)
 
-    def _extract_queued(self, waiting: deque, pyramid: list, found: dict) -> None:
+    def _extract_queued(self, waiting: deque, pyramid: list, found: dict, budget: int) -> None:
         """Take levels from ``waiting`` (a deque's popleft is atomic) until it is empty."""
         while True:
             try:
                 level = waiting.popleft()
             except IndexError:
                 return
-            found[level] = self._extract_level(level, pyramid[level])
+            found[level] = self._extract_level(level, pyramid[level], budget)
 
-    def _extract_level(self, level: int, image: np.ndarray) -> tuple[np.ndarray, ...] | None:
+    def _extract_level(self, level: int, image: np.ndarray, budget: int) -> tuple[np.ndarray, ...] | None:
         detector = self._level_detectors[level]
         keypoints = detector.detect(image, self._level_masks[level])
         if not keypoints:
             return None
         scale = np.float32(self.scale_factors[level])  # float32 products, as OpenCV scales its keypoints
         response = np.fromiter((k.response for k in keypoints), float, len(keypoints))
-        chosen = self._distribute(cv2.KeyPoint_convert(keypoints) * scale, np.full(len(keypoints), level), response)
+        chosen = self._distribute(cv2.KeyPoint_convert(keypoints) * scale, np.full(len(keypoints), level), response, budget)
         keypoints, descriptors = detector.compute(image, [keypoints[i] for i in chosen])
         if descriptors is None or not keypoints:
             return None
@@ -188,7 +190,7 @@ class OrbExtractor:
             descriptors,
         )
 
-    def _distribute(self, xy: np.ndarray, octave: np.ndarray, response: np.ndarray) -> np.ndarray:
+    def _distribute(self, xy: np.ndarray, octave: np.ndarray, response: np.ndarray, budget: int) -> np.ndarray:
         """Indices of the kept keypoints, level by level: round robin over grid cells, strongest
         first in each cell, until the level's quota is filled."""
         strong = response >= self.settings.ini_fast_threshold
@@ -204,7 +206,7 @@ class OrbExtractor:
         order = order[np.lexsort((-response[order], rank, octave[order]))]  # by level, round, strength
         level = octave[order]
         level_start = np.searchsorted(level, level)
-        keep = np.arange(len(order)) - level_start < self.level_quota[np.clip(level, 0, len(self.level_quota) - 1)]
+        keep = np.arange(len(order)) - level_start < budget * self.level_quota[np.clip(level, 0, len(self.level_quota) - 1)]
         return rows[order[keep]]
 
     @staticmethod

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from evp.config import Settings
@@ -9,6 +11,9 @@ from evp.errors import CalibrationError
 from evp.estimator import Estimator
 from evp.io.dataset import Dataset
 from evp.types import CameraModel
+
+if TYPE_CHECKING:
+    from evp.fusion.navigation_stage import NavigationStage
 
 
 def camera_for(dataset: Dataset, settings: Settings) -> CameraModel:
@@ -65,3 +70,14 @@ def make_estimator(camera: CameraModel, settings: Settings, dataset: Dataset | N
     from evp.vo.klt_vo import KltVisualOdometry
 
     return KltVisualOdometry(camera, settings.vo)
+
+
+def navigation_stage(dataset: Dataset, settings: Settings, estimator: Estimator) -> NavigationStage | None:
+    """The navigation stage ``evp run`` puts after the estimator: when ``navigation.enabled``, the
+    estimator is SLAM (VO's map restarts at every loss; a survey has no IMU) and the dataset has an
+    IMU and the camera's extrinsic to it; else None (the estimator's poses are the answer)."""
+    if not (settings.navigation.enabled and settings.estimator == "slam" and dataset.imu and dataset.T_body_cam is not None):
+        return None
+    from evp.fusion.navigation_stage import NavigationStage
+
+    return NavigationStage(dataset.T_body_cam, settings.navigation, lambda: estimator.reset_counter)

@@ -25,7 +25,7 @@ import numpy as np
 
 from evp.config import NavigationSettings
 from evp.fusion.measurements import BaroAltitude, RangeHeight, VisualPose
-from evp.fusion.nav_state import ACCEL_BIAS, ATTITUDE, GYRO_BIAS, LOG_SCALE, MAP_ATTITUDE, MAP_POSITION, POSITION, VELOCITY
+from evp.fusion.nav_state import ATTITUDE, LOG_SCALE, MAP_ATTITUDE, MAP_POSITION, POSITION, VELOCITY
 from evp.fusion.navigation_filter import Innovation, NavigationFilter, NavigationOutput, initial_covariance
 from evp.fusion.visual_inertial_init import InertialAlignment, initialise_visual_inertial
 from evp.types import BaroSample, Frame, ImuSample, PoseEstimate, RangeSample, TrackingState
@@ -181,18 +181,15 @@ class NavigationStage:
         self._imu, self._keyframes = [], []
 
     def _start_covariance(self) -> np.ndarray:
-        P = initial_covariance(self.settings)
-        sigmas = {
-            POSITION: START_POSITION_SIGMA_M,
-            VELOCITY: START_VELOCITY_SIGMA_M_S,
-            ATTITUDE: START_ATTITUDE_SIGMA_RAD,
-            GYRO_BIAS: self.settings.initial_gyro_bias_sigma,
-            ACCEL_BIAS: self.settings.initial_accel_bias_sigma,
-            MAP_ATTITUDE: START_MAP_ATTITUDE_SIGMA_RAD,
-            MAP_POSITION: START_MAP_POSITION_SIGMA_M,
-        }
-        diagonal = np.diag(P).copy()
-        for states, sigma in sigmas.items():
-            diagonal[states] = sigma**2
-        diagonal[LOG_SCALE] = START_LOG_SCALE_SIGMA**2
-        return np.diag(diagonal)
+        """The prior (settings) with what the alignment determined narrowed to the START_ sigmas."""
+        variances = np.diag(initial_covariance(self.settings)).copy()
+        for states, sigma in (
+            (POSITION, START_POSITION_SIGMA_M),
+            (VELOCITY, START_VELOCITY_SIGMA_M_S),
+            (ATTITUDE, START_ATTITUDE_SIGMA_RAD),
+            (LOG_SCALE, START_LOG_SCALE_SIGMA),
+            (MAP_ATTITUDE, START_MAP_ATTITUDE_SIGMA_RAD),
+            (MAP_POSITION, START_MAP_POSITION_SIGMA_M),
+        ):
+            variances[states] = sigma**2
+        return np.diag(variances)

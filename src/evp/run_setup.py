@@ -72,11 +72,25 @@ def make_estimator(camera: CameraModel, settings: Settings, dataset: Dataset | N
     return KltVisualOdometry(camera, settings.vo)
 
 
+def navigation_off(dataset: Dataset, settings: Settings) -> str | None:
+    """Why ``evp run`` runs no navigation stage on ``dataset`` (None: it runs one). It runs when
+    ``navigation.enabled``, the estimator is SLAM (VO's map restarts at every loss; a survey has
+    no IMU) and the dataset has an IMU and the camera's extrinsic to it."""
+    if not settings.navigation.enabled:
+        return "navigation.enabled is false"
+    if settings.estimator != "slam":
+        return f"the estimator is {settings.estimator}, not slam"
+    if not dataset.imu:
+        return "the dataset has no IMU"
+    if dataset.T_body_cam is None:
+        return "the dataset has no camera-IMU extrinsic"
+    return None
+
+
 def navigation_stage(dataset: Dataset, settings: Settings, estimator: Estimator) -> NavigationStage | None:
-    """The navigation stage ``evp run`` puts after the estimator: when ``navigation.enabled``, the
-    estimator is SLAM (VO's map restarts at every loss; a survey has no IMU) and the dataset has an
-    IMU and the camera's extrinsic to it; else None (the estimator's poses are the answer)."""
-    if not (settings.navigation.enabled and settings.estimator == "slam" and dataset.imu and dataset.T_body_cam is not None):
+    """The navigation stage after ``estimator`` (its reset counter marks the visual jumps), or None
+    when :func:`navigation_off` says why not."""
+    if navigation_off(dataset, settings) is not None:
         return None
     from evp.fusion.navigation_stage import NavigationStage
 

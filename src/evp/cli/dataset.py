@@ -48,7 +48,7 @@ def run(
     from evp.io.registry import open_dataset
     from evp.io.run_outputs import write_outputs
     from evp.pipeline import run_dataset
-    from evp.run_setup import camera_for, make_estimator, navigation_stage, resolve_settings
+    from evp.run_setup import camera_for, make_estimator, navigation_off, navigation_stage, resolve_settings
 
     settings = load_settings(config)
     dataset = open_dataset(dataset_path, fmt)
@@ -58,6 +58,8 @@ def run(
     settings = resolve_settings(settings, dataset)  # settings.yaml then names what ran
     estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
     navigation = navigation_stage(dataset, settings, estimator)
+    if navigation is None and dataset.imu:
+        typer.echo(f"warning: the IMU is not fused: {navigation_off(dataset, settings)}", err=True)
     with Progress(transient=True) as progress:
         task = progress.add_task(f"{dataset.name}", total=dataset.num_frames)
         # a real-time replay has no spare time to also run OpenCV's ORB on each frame

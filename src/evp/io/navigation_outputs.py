@@ -30,7 +30,7 @@ def write_navigation_csv(stage: NavigationStage, path: Path) -> None:
             numbers = [*o.T_world_body[:3, 3], *o.velocity, o.scale, o.scale_sigma, int(o.scale_known), *o.gyro_bias, *o.accel_bias, o.baro_bias]
             update = "none" if visual is None else visual.status.value
             nis = float("nan") if visual is None else visual.nis
-            handle.write(f"{o.timestamp!r}," + ",".join(f"{v:.9g}" for v in numbers) + f",{update},{nis:.6g}\n")
+            handle.write(f"{float(o.timestamp)!r}," + ",".join(f"{v:.9g}" for v in numbers) + f",{update},{nis:.6g}\n")
 
 
 def navigation_metrics(stage: NavigationStage, result: RunResult, dataset: Dataset, settings: Settings, out: Path) -> dict:

@@ -14,9 +14,9 @@ from evp.errors import DatasetError, FrameError
 from evp.estimator import Estimator
 from evp.io.registry import open_dataset
 from evp.io.run_outputs import write_outputs
-from evp.pipeline import Pipeline, RealTime, RunResult, Sink, run_dataset, run_frames
+from evp.pipeline import Pipeline, RealTime, RunResult, Sink, Stage, run_dataset, run_frames
 from evp.run_setup import make_estimator, resolve_settings
-from evp.types import Frame, PoseEstimate, TrackingState
+from evp.types import Frame, ImuSample, PoseEstimate, TrackingState
 from tests.conftest import SAMPLE
 from tests.io import builders
 
@@ -131,6 +131,32 @@ def test_pipeline_order_is_feed_stages_sinks_settle_then_finish():
     assert estimator.calls == ["feed 0", "sink 0 x=0", "settle", "feed 1", "sink 1 x=0.5", "settle", "finish", "sink finish"]
     assert [e.T_world_cam[2, 3] for e in result.estimates] == [1.0, 1.0]  # sinks see the stages' output
     assert len(result.tracking_ms) == 2
+
+
+class _Watch(Stage):
+    """A stage that logs the telemetry it observes (``observe`` overridden) and passes estimates on."""
+
+    def __init__(self, calls: list[str]):
+        self.calls = calls
+
+    def observe(self, record):
+        self.calls.append(f"imu {record.timestamp:g}")
+
+    def process(self, frame, estimate):
+        return estimate
+
+
+def test_telemetry_reaches_the_stages_before_the_frames_not_older_than_it():
+    estimator = _Slider()
+    imu = [ImuSample(t, (0.0, 0.0, 0.0), (0.0, 0.0, 9.8)) for t in (0.0, 0.25, 0.5, 0.75, 1.5)]
+    Pipeline(estimator, [_Log(estimator.calls)], [_Watch(estimator.calls)]).run(_frames([0.0, 0.5, 1.0]), imu)
+    assert estimator.calls == [
+        *["imu 0", "feed 0", "sink 0 x=0", "settle"],
+        *["imu 0.25", "imu 0.5", "feed 1", "sink 1 x=0.5", "settle"],
+        *["imu 0.75", "feed 2", "sink 2 x=1", "settle"],
+        *["finish", "sink finish"],  # the record after the last frame answers no frame
+    ]
+    assert Stage.observe(_Lift(), imu[0]) is None  # the protocol's default: a stage that needs no telemetry
 
 
 def test_pipeline_skips_refused_frames_and_time_going_backwards():

@@ -216,6 +216,17 @@ class NavigationSettings(_Section):
     non_holonomic_sigma_m_s: float = Field(0.1, gt=0, description="lateral and vertical body speed of a ground vehicle (non-holonomic constraint)")
     yaw_rate_sigma_rad_s: float = Field(0.01, gt=0)
     beacon_range_sigma_m: float = Field(0.1, gt=0)
+    enabled: bool = Field(
+        True, description="evp run: fuse the IMU (and barometer, range finder) with SLAM when the dataset has an IMU and its camera extrinsic"
+    )
+    use_baro: bool = Field(True, description="fuse the barometer's altitude when the dataset has one")
+    use_range: bool = Field(True, description="fuse the range finder's height when the dataset has one")
+    vi_init_keyframe_interval_s: float = Field(
+        0.25, gt=0, description="visual-inertial initialisation: a tracked pose at least this long after the previous one is taken as a keyframe"
+    )
+    vi_init_window_keyframes: int = Field(
+        10, ge=3, description="visual-inertial initialisation: the newest this many keyframes are solved together (VINS-Mono's window: 10)"
+    )
     vi_init_min_keyframes: int = Field(5, ge=3, description="visual-inertial initialisation: keyframes needed before gravity and scale are solved for")
     vi_init_min_acceleration_std_m_s2: float = Field(
         0.25,

@@ -25,13 +25,18 @@ import numpy as np
 
 from evp.errors import EvpError, UsageError
 from evp.estimator import Estimator
-from evp.io.dataset import Dataset
+from evp.io.dataset import Dataset, TelemetryRecord
 from evp.types import Frame, PoseEstimate, Trajectory
 from evp.vision.images import to_grey
 
 
 class Stage(Protocol):
-    """A step after the estimator (a navigation filter...): an estimate in, an estimate out."""
+    """A step after the estimator (a navigation filter...): an estimate in, an estimate out.
+    ``observe`` gets every telemetry record (IMU, barometer, GPS...) in time order, each before
+    the first frame not older than it; a stage that needs none leaves it a no-op."""
+
+    def observe(self, record: TelemetryRecord) -> None:
+        return None
 
     def process(self, frame: Frame, estimate: PoseEstimate) -> PoseEstimate: ...
 
@@ -85,11 +90,18 @@ class Pipeline:
         self.pacing = pacing
         self._last_stamp = -np.inf
 
-    def run(self, frames: Iterable[Frame]) -> None:
-        """Feed every frame the pacing releases, then finish the estimator; a run that fails part
-        way (a bug, an interrupt) closes it, so no thread or process it started outlives the run."""
+    def run(self, frames: Iterable[Frame], telemetry: Iterable[TelemetryRecord] = ()) -> None:
+        """Feed every frame the pacing releases, each after the ``telemetry`` records (time order)
+        stamped up to it, then finish the estimator; a run that fails part way (a bug, an
+        interrupt) closes it, so no thread or process it started outlives the run. Telemetry is
+        never dropped by the pacing; records after the last frame answer no frame and are not fed."""
+        records = iter(telemetry)
+        pending = next(records, None)
         try:
             for frame in self.pacing(frames, self._drop):
+                while pending is not None and pending.timestamp <= frame.timestamp:
+                    self.telemetry(pending)
+                    pending = next(records, None)
                 self.process(frame)
         except BaseException:
             self.estimator.close()
@@ -117,6 +129,11 @@ class Pipeline:
             sink.on_estimate(frame, estimate, elapsed_ms)
         self.estimator.settle()
         return estimate
+
+    def telemetry(self, record: TelemetryRecord) -> None:
+        """One telemetry record (as it arrives live, or in time order from a dataset) to the stages."""
+        for stage in self.stages:
+            stage.observe(record)
 
     def skip(self, frame: Frame | None, reason: str) -> None:
         """Report a frame the source or the estimator could not use."""
@@ -161,9 +178,16 @@ class RunResult(Sink):
         return [e for e in self.estimates if e.tracking_state.tracked]
 
     def trajectory(self) -> Trajectory:
+        """The estimator's own poses as answered (its frame and scale, before any stage)."""
         tracked = self.tracked
-        poses = np.array([e.T_world_cam for e in tracked]).reshape(-1, 4, 4)
+        poses = np.array([e.visual_pose for e in tracked]).reshape(-1, 4, 4)
         return Trajectory.from_poses(poses, np.array([e.timestamp for e in tracked]), "estimate")
+
+    def metric_trajectory(self) -> Trajectory:
+        """The poses a navigation stage made metric and gravity-aligned (empty without one)."""
+        metric = [e for e in self.tracked if e.metric]
+        poses = np.array([e.T_world_cam for e in metric]).reshape(-1, 4, 4)
+        return Trajectory.from_poses(poses, np.array([e.timestamp for e in metric]), "navigation")
 
     def segments(self) -> list[Trajectory]:
         """The tracked poses split where tracking was lost: a light VO restarts in a new frame and
@@ -175,7 +199,7 @@ class RunResult(Sink):
             elif pieces[-1]:
                 pieces.append([])
         return [
-            Trajectory.from_poses(np.array([e.T_world_cam for e in piece]), np.array([e.timestamp for e in piece]), f"segment{k}")
+            Trajectory.from_poses(np.array([e.visual_pose for e in piece]), np.array([e.timestamp for e in piece]), f"segment{k}")
             for k, piece in enumerate(p for p in pieces if p)
         ]
 
@@ -227,10 +251,18 @@ class ReferenceOrbTimer(Sink):
         self.ms.append((time.perf_counter() - start) * 1000.0)
 
 
-def run_frames(estimator: Estimator, frames: Iterable[Frame], sinks: Sequence[Sink] = (), pacing: Pacing = as_fast_as_possible) -> RunResult:
-    """Frames already in hand (a test's, a bench's trial) through the pipeline; the recorded answers."""
+def run_frames(
+    estimator: Estimator,
+    frames: Iterable[Frame],
+    sinks: Sequence[Sink] = (),
+    pacing: Pacing = as_fast_as_possible,
+    stages: Sequence[Stage] = (),
+    telemetry: Iterable[TelemetryRecord] = (),
+) -> RunResult:
+    """Frames already in hand (a test's, a bench's trial) through the pipeline, with ``telemetry``
+    (time order) for the ``stages``; the recorded answers."""
     result = RunResult(estimator)
-    Pipeline(estimator, [result, *sinks], pacing=pacing).run(frames)
+    Pipeline(estimator, [result, *sinks], stages, pacing).run(frames, telemetry)
     return result
 
 
@@ -241,15 +273,19 @@ def run_dataset(
     reference_orb_features: int | None = None,
     realtime_speed: float | None = None,
     sinks: Sequence[Sink] = (),
+    stages: Sequence[Stage] = (),
 ) -> RunResult:
     """A dataset through the pipeline: every frame as fast as possible, or with
     ``realtime_speed`` at its recorded pace times that factor, newest first (``RunResult.dropped``).
     Undecodable or rejected frames are skipped and reported, never fatal. With
-    ``reference_orb_features`` OpenCV's ORB is timed on each frame too (``RunResult.reference_orb_ms``)."""
+    ``reference_orb_features`` OpenCV's ORB is timed on each frame too (``RunResult.reference_orb_ms``).
+    With ``stages`` the dataset's telemetry goes to them too, each record before the frames not
+    older than it (the order of :meth:`Dataset.stream`, a record stamped as a frame first)."""
     timer = ReferenceOrbTimer(reference_orb_features) if reference_orb_features else None
     extra: list[Sink] = [*sinks, *([timer] if timer else []), *([Progress(progress)] if progress else [])]
     errors: list[EvpError] = []  # frames the reader could not decode, in the order met
-    result = run_frames(estimator, dataset.frames(errors), extra, as_fast_as_possible if realtime_speed is None else RealTime(realtime_speed))
+    pacing = as_fast_as_possible if realtime_speed is None else RealTime(realtime_speed)
+    result = run_frames(estimator, dataset.frames(errors), extra, pacing, stages, dataset.telemetry() if stages else ())
     result.skipped += [str(error) for error in errors]
     result.reference_orb_ms = timer.ms if timer is not None else []
     return result

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from evp.config import Settings
@@ -9,6 +11,9 @@ from evp.errors import CalibrationError
 from evp.estimator import Estimator
 from evp.io.dataset import Dataset
 from evp.types import CameraModel
+
+if TYPE_CHECKING:
+    from evp.fusion.navigation_stage import NavigationStage
 
 
 def camera_for(dataset: Dataset, settings: Settings) -> CameraModel:
@@ -65,3 +70,28 @@ def make_estimator(camera: CameraModel, settings: Settings, dataset: Dataset | N
     from evp.vo.klt_vo import KltVisualOdometry
 
     return KltVisualOdometry(camera, settings.vo)
+
+
+def navigation_off(dataset: Dataset, settings: Settings) -> str | None:
+    """Why ``evp run`` runs no navigation stage on ``dataset`` (None: it runs one). It runs when
+    ``navigation.enabled``, the estimator is SLAM (VO's map restarts at every loss; a survey has
+    no IMU) and the dataset has an IMU and the camera's extrinsic to it."""
+    if not settings.navigation.enabled:
+        return "navigation.enabled is false"
+    if settings.estimator != "slam":
+        return f"the estimator is {settings.estimator}, not slam"
+    if not dataset.imu:
+        return "the dataset has no IMU"
+    if dataset.T_body_cam is None:
+        return "the dataset has no camera-IMU extrinsic"
+    return None
+
+
+def navigation_stage(dataset: Dataset, settings: Settings, estimator: Estimator) -> NavigationStage | None:
+    """The navigation stage after ``estimator`` (its reset counter marks the visual jumps), or None
+    when :func:`navigation_off` says why not."""
+    if navigation_off(dataset, settings) is not None:
+        return None
+    from evp.fusion.navigation_stage import NavigationStage
+
+    return NavigationStage(dataset.T_body_cam, settings.navigation, lambda: estimator.reset_counter)

@@ -115,6 +115,11 @@ class PoseEstimate:
 
     ``T_world_cam`` is 4x4 (camera-to-world). ``quality`` is 0..100 (MAVLink convention).
     ``covariance`` is 6x6 over (x, y, z, roll, pitch, yaw) in the world frame, when known.
+
+    An estimator answers in its own frame and scale (``metric`` False). A navigation stage that
+    makes the pose metric and gravity-aligned sets ``metric`` and keeps the estimator's pose in
+    ``T_visual_cam``; ``scale_known`` says its scale's uncertainty is below the settings' bound,
+    ``georeferenced`` that the world is ENU at a GPS origin.
     """
 
     timestamp: float
@@ -122,6 +127,15 @@ class PoseEstimate:
     tracking_state: TrackingState
     quality: int = 0
     covariance: np.ndarray | None = None
+    metric: bool = False
+    scale_known: bool = False
+    georeferenced: bool = False
+    T_visual_cam: np.ndarray | None = None
+
+    @property
+    def visual_pose(self) -> np.ndarray:
+        """The estimator's own pose (its frame and scale), whatever a stage made of it."""
+        return self.T_world_cam if self.T_visual_cam is None else self.T_visual_cam
 
 
 @dataclass(frozen=True)

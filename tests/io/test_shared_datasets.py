@@ -52,6 +52,14 @@ def test_euroc_calibration_imu_and_ground_truth_frame():
     assert [r.timestamp for r in stream] == sorted(r.timestamp for r in stream)
 
 
+def test_euroc_camera_imu_extrinsic_is_cam0_in_imu0():
+    dataset = open_dataset(shared("euroc_mh_01_easy_moving_360"))
+    # imu0's T_BS is the identity in EuRoC, so cam0 in imu0 is cam0's T_BS (its sensor.yaml)
+    assert dataset.T_body_cam[:3, 3] == pytest.approx([-0.0216401454975, -0.064676986768, 0.00981073058949])
+    assert dataset.T_body_cam[0, 1] == pytest.approx(-0.999880929698)
+    assert len(dataset.imu) == 36820
+
+
 def test_exif_photos_give_gps_in_enu():
     dataset = open_dataset(shared("aerial_nadir_odm_toledo_fc350"))
     assert len(dataset.gps) == 47

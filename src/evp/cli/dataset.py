@@ -48,7 +48,7 @@ def run(
     from evp.io.registry import open_dataset
     from evp.io.run_outputs import write_outputs
     from evp.pipeline import run_dataset
-    from evp.run_setup import camera_for, make_estimator, resolve_settings
+    from evp.run_setup import camera_for, make_estimator, navigation_off, navigation_stage, resolve_settings
 
     settings = load_settings(config)
     dataset = open_dataset(dataset_path, fmt)
@@ -57,16 +57,20 @@ def run(
     echo_warnings(dataset)
     settings = resolve_settings(settings, dataset)  # settings.yaml then names what ran
     estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
+    navigation = navigation_stage(dataset, settings, estimator)
+    if navigation is None and dataset.imu:
+        typer.echo(f"warning: the IMU is not fused: {navigation_off(dataset, settings)}", err=True)
     with Progress(transient=True) as progress:
         task = progress.add_task(f"{dataset.name}", total=dataset.num_frames)
         # a real-time replay has no spare time to also run OpenCV's ORB on each frame
         reference_orb = None if realtime else settings.orb.n_features
-        result = run_dataset(dataset, estimator, lambda n: progress.advance(task, n), reference_orb, speed if realtime else None)
+        stages = [navigation] if navigation is not None else []
+        result = run_dataset(dataset, estimator, lambda n: progress.advance(task, n), reference_orb, speed if realtime else None, stages=stages)
     # a survey adjustment or a global bundle adjustment: seconds after the last frame (the result
     # keeps it for write_outputs)
     with Console(stderr=True).status(f"{dataset.name}: refining the trajectory (end of run)"):
         result.final_trajectory()
-    metrics = write_outputs(result, dataset, settings, out)
+    metrics = write_outputs(result, dataset, settings, out, navigation)
     if metrics["tracked_frames"] == 0:
         frames = f"{dataset.num_frames} frame" + ("s" if dataset.num_frames != 1 else "")
         raise InitialisationError(
@@ -83,9 +87,25 @@ def run(
             f"ATE ({ALIGNED[settings.eval.align]} RMSE) {metrics['rmse']:.4f} m over {metrics['matched_poses']} poses; "
             f"ground-truth path {metrics['reference_path_length_m']:.2f} m"
         )
+    if navigation is not None:
+        echo_navigation(metrics["navigation"])
     for reason in metrics["skipped"]:
         typer.echo(f"skipped: {reason}", err=True)
     typer.echo(f"results in {out}")
+
+
+def echo_navigation(section: dict) -> None:
+    """The navigation stage's answer: its state, scale and SE3 ATE, and how many warnings."""
+    line = f"navigation: {section['status']}"
+    if "scale" in section:
+        line += f"; scale {section['scale']:.4g} m/unit (1 sigma {100 * section['scale_sigma']:.2f} %)"
+    if "ate_se3_rmse_m" in section:
+        line += f"; ATE (SE3-aligned, no scale, RMSE) {section['ate_se3_rmse_m']:.4f} m, scale error {100 * section['scale_error']:+.2f} %"
+    typer.echo(line)
+    for warning in section["warnings"]:
+        typer.echo(f"warning: navigation: {warning}", err=True)
+    if section["warnings_count"] > len(section["warnings"]):
+        typer.echo(f"warning: navigation: {section['warnings_count'] - len(section['warnings'])} more warnings (metrics.json)", err=True)
 
 
 def echo_warnings(dataset) -> None:

@@ -44,6 +44,7 @@ class Dataset:
     trajectories: dict[str, Trajectory] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)  # what the reader had to assume (nominal frame times...): commands print them
+    T_body_cam: np.ndarray | None = None  # the camera in the IMU frame (4x4, metres), when the dataset calibrates it
 
     @property
     def num_frames(self) -> int:

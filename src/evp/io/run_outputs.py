@@ -9,7 +9,9 @@ import numpy as np
 
 from evp.config import Settings, write_settings
 from evp.errors import EvaluationError
+from evp.fusion.navigation_stage import NavigationStage
 from evp.io.dataset import Dataset
+from evp.io.navigation_outputs import navigation_metrics, write_navigation_csv
 from evp.io.trajectory import write_trajectory
 from evp.pipeline import RunResult
 from evp.types import Trajectory
@@ -41,16 +43,26 @@ def run_timing(result: RunResult) -> dict:
     return timing
 
 
-def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: Path) -> dict:
+def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: Path, navigation: NavigationStage | None = None) -> dict:
     """trajectory.tum, states.csv, timing.json, metrics.json (+ plots) when ground truth exists,
-    settings.yaml; trajectory_live.tum (the poses as answered live) when trajectory.tum holds a
-    refined trajectory; camera_estimated.yaml (usable as camera.calibration_file) when the
-    estimator estimated the lens; for an estimator with a map also keyframes.tum, map.ply and map.npz."""
+    settings.yaml; trajectory_live.tum (the poses as answered live) when the estimator's trajectory
+    is a refined one; camera_estimated.yaml (usable as camera.calibration_file) when the
+    estimator estimated the lens; for an estimator with a map also keyframes.tum, map.ply and map.npz.
+
+    With a ``navigation`` stage, trajectory.tum is the fused metric, gravity-aligned trajectory
+    (the estimator's while the stage never initialised), the estimator's own goes to
+    trajectory_visual.tum, navigation.csv follows the filter, and metrics.json gains a
+    ``navigation`` section and ``ate_se3_rmse`` (:func:`navigation_metrics`); the top-level ATE
+    figures stay the estimator's trajectory's, as without the stage."""
     estimator = result.estimator
     out.mkdir(parents=True, exist_ok=True)
     write_settings(settings, out)
     trajectory = result.final_trajectory()
-    write_trajectory(out / "trajectory.tum", trajectory)
+    metric = result.metric_trajectory() if navigation is not None else None
+    if metric is not None:
+        write_trajectory(out / "trajectory_visual.tum", trajectory)
+        write_navigation_csv(navigation, out / "navigation.csv")
+    write_trajectory(out / "trajectory.tum", metric if metric else trajectory)
     if result.refined is not None:
         write_trajectory(out / "trajectory_live.tum", result.trajectory())
     if estimator.lens is not None:
@@ -93,5 +105,9 @@ def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: 
         else:
             metrics.update(evaluation.summary())
             write_report(evaluation, out / "plots", "ground truth", "trajectory.tum")
+    if navigation is not None:
+        metrics["navigation"] = navigation_metrics(navigation, result, dataset, settings, out)
+        if "ate_se3_rmse_m" in metrics["navigation"]:
+            metrics["ate_se3_rmse"] = metrics["navigation"]["ate_se3_rmse_m"]
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return metrics

@@ -26,6 +26,15 @@ def _t_body_sensor(path: Path) -> np.ndarray:
         raise DatasetError(path, f"cannot read T_BS extrinsics: {exc}") from exc
 
 
+def _t_imu_cam(mav0: Path) -> np.ndarray | None:
+    """cam0 in the imu0 frame from both sensors' ``T_BS`` (each relative to EuRoC's body frame,
+    which is imu0's in EuRoC itself); None when either sensor.yaml is missing."""
+    cam_yaml, imu_yaml = mav0 / "cam0" / "sensor.yaml", mav0 / "imu0" / "sensor.yaml"
+    if not (cam_yaml.is_file() and imu_yaml.is_file()):
+        return None
+    return np.linalg.inv(_t_body_sensor(imu_yaml)) @ _t_body_sensor(cam_yaml)
+
+
 def _stamped_images(folder: Path) -> list[Path]:
     """The PNGs of ``folder`` named by an integer nanosecond timestamp, in time order."""
     if not folder.is_dir():
@@ -71,6 +80,7 @@ class EurocReader:
         if imu_csv.is_file():
             rows, _, _ = read_table(imu_csv, columns=7)
             dataset.imu = [ImuSample(t / 1e9, tuple(r[1:4]), tuple(r[4:7])) for t, r in zip(rows[:, 0], rows)]
+            dataset.T_body_cam = _t_imu_cam(mav0)
         self._extra_sensors(mav0, dataset)
         self._ground_truth(mav0, root, dataset)
         leica = mav0 / "leica0" / "data.csv"

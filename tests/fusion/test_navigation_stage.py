@@ -1,0 +1,115 @@
+"""The navigation stage in the pipeline: SLAM-like poses in an arbitrary map frame and scale, plus
+the exact IMU of a known trajectory (tests/fusion/inertial_trajectory.py), come out metric."""
+
+import numpy as np
+
+from evp.config import NavigationSettings, Settings
+from evp.estimator import Estimator
+from evp.eval.evaluate import evaluate
+from evp.fusion.navigation_stage import NavigationStage
+from evp.pipeline import run_frames
+from evp.types import Frame, ImuSample, PoseEstimate, TrackingState, Trajectory
+from tests.fusion.inertial_trajectory import SinusoidTrajectory, imu_times
+from tests.fusion.test_navigation_filter import MAP_SCALE, R_WORLD_MAP, T_BODY_CAM, T_WORLD_MAP
+
+FRAME_RATE = 20.0
+DURATION_S = 5.0
+
+
+def map_pose(trajectory, t, R_world_map=R_WORLD_MAP, t_world_map=T_WORLD_MAP, scale=MAP_SCALE):
+    """The camera's pose in a visual map whose world pose is (R_world_map, t_world_map, scale)."""
+    T_world_cam = trajectory.pose(t) @ T_BODY_CAM
+    T = np.eye(4)
+    T[:3, :3] = R_world_map.T @ T_world_cam[:3, :3]
+    T[:3, 3] = R_world_map.T @ (T_world_cam[:3, 3] - t_world_map) / scale
+    return T
+
+
+class _Answers(Estimator):
+    """Answers each frame with a prepared estimate; ``resets`` maps a frame index to the
+    estimator's reset counter from that frame on (a relocalisation)."""
+
+    def __init__(self, estimates, resets=None):
+        self.estimates, self.resets = estimates, resets or {}
+
+    def feed(self, frame: Frame) -> PoseEstimate:
+        self.reset_counter = self.resets.get(frame.index, self.reset_counter)
+        return self.estimates[frame.index]
+
+
+def _frames(times):
+    return [Frame(float(t), np.zeros((2, 2), np.uint8), i) for i, t in enumerate(times)]
+
+
+def _run(estimates, imu, resets=None, settings=None):
+    estimator = _Answers(estimates, resets)
+    stage = NavigationStage(T_BODY_CAM, settings or NavigationSettings(), lambda: estimator.reset_counter)
+    result = run_frames(estimator, _frames([e.timestamp for e in estimates]), stages=[stage], telemetry=imu)
+    return stage, result
+
+
+def _se3_error(trajectory, result) -> float:
+    metric = result.metric_trajectory()
+    truth = Trajectory.from_poses(np.array([trajectory.pose(t) @ T_BODY_CAM for t in metric.timestamps]), metric.timestamps)
+    settings = Settings().eval.model_copy(update={"align": "se3", "max_time_diff_s": 0.01})
+    return evaluate(truth, metric, settings).summary()["rmse"]
+
+
+def test_the_stage_makes_arbitrary_scale_poses_metric():
+    trajectory = SinusoidTrajectory()
+    times = np.arange(0.0, DURATION_S, 1.0 / FRAME_RATE)
+    estimates = [PoseEstimate(float(t), map_pose(trajectory, t), TrackingState.OK, 80) for t in times]
+    stage, result = _run(estimates, trajectory.imu(imu_times(DURATION_S)))
+    # the specific force varies enough over the window (0.25 m/s^2) from the 9th keyframe, at 2 s
+    assert stage.filter is not None and stage.initialised_at == 2.0, stage.status
+    first = result.estimates[0]
+    assert not first.metric and first.T_visual_cam is None  # not yet observable: the estimator's pose passes on
+    metric = [e for e in result.estimates if e.metric]
+    assert len(metric) == len(times) - 40  # every frame from 2 s on
+    assert all(e.covariance.shape == (6, 6) for e in metric)
+    np.testing.assert_allclose(metric[-1].T_visual_cam, estimates[-1].T_world_cam)
+    assert abs(stage.records[-1].output.scale / MAP_SCALE - 1.0) < 0.005
+    assert metric[-1].scale_known
+    assert _se3_error(trajectory, result) < 0.01  # metres, with no scale in the alignment
+    # gravity-aligned: the camera's world z is the truth's (heading alone is the map's)
+    up = trajectory.pose(metric[-1].timestamp) @ T_BODY_CAM
+    assert np.degrees(np.arccos(np.clip(metric[-1].T_world_cam[2, :3] @ up[2, :3], -1.0, 1.0))) < 0.5
+    # the run's own trajectory stays the estimator's
+    np.testing.assert_allclose(result.trajectory().positions, [e.T_world_cam[:3, 3] for e in estimates], atol=1e-12)
+
+
+def test_a_relocalisation_is_a_jump_not_motion():
+    trajectory = SinusoidTrajectory()
+    times = np.arange(0.0, DURATION_S, 1.0 / FRAME_RATE)
+    jump = 60  # from frame 60 the map has another pose in the world (same scale)
+    moved = {"R_world_map": R_WORLD_MAP @ np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]), "t_world_map": T_WORLD_MAP + [1.0, 2.0, 0.0]}
+    estimates = [
+        PoseEstimate(float(t), map_pose(trajectory, t, **(moved if i >= jump else {})), TrackingState.RELOCALIZED if i == jump else TrackingState.OK)
+        for i, t in enumerate(times)
+    ]
+    stage, result = _run(estimates, trajectory.imu(imu_times(DURATION_S)), resets={jump: 1})
+    assert _se3_error(trajectory, result) < 0.01
+    assert all(r.visual.accepted for r in stage.records if r.visual is not None)
+
+
+def test_bad_imu_is_dropped_with_a_warning_and_the_run_goes_on():
+    trajectory = SinusoidTrajectory()
+    times = np.arange(0.0, DURATION_S, 1.0 / FRAME_RATE)
+    estimates = [PoseEstimate(float(t), map_pose(trajectory, t), TrackingState.OK) for t in times]
+    imu = trajectory.imu(imu_times(DURATION_S))
+    imu.insert(100, ImuSample(imu[99].timestamp + 0.001, (np.nan, 0.0, 0.0), (0.0, 0.0, 9.8)))  # before the filter starts
+    imu.insert(101, ImuSample(imu[50].timestamp, (0.0, 0.0, 0.0), (0.0, 0.0, 9.8)))  # time going backwards
+    imu.insert(700, ImuSample(imu[699].timestamp + 0.001, (0.0, 0.0, 0.0), (np.inf, 0.0, 9.8)))  # after
+    stage, result = _run(estimates, imu)
+    assert len(stage.warnings) == 3
+    assert "NaN or infinite" in stage.warnings[0] and "not after the previous one" in stage.warnings[1]
+    assert stage.filter is not None and _se3_error(trajectory, result) < 0.01
+
+
+def test_without_motion_the_scale_is_not_yet_observable():
+    still = SinusoidTrajectory(amplitude=(0.0, 0.0, 0.0), cruise=(0.0, 0.0, 0.0), euler_amplitude=(0.0, 0.0, 0.0), yaw_rate=0.0)
+    times = np.arange(0.0, 2.0, 1.0 / FRAME_RATE)
+    estimates = [PoseEstimate(float(t), map_pose(still, t), TrackingState.OK) for t in times]
+    stage, result = _run(estimates, still.imu(imu_times(2.0)))
+    assert stage.filter is None and stage.status.startswith("scale not yet observable: too little acceleration")
+    assert not any(e.metric for e in result.estimates) and len(result.metric_trajectory()) == 0

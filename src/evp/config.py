@@ -239,6 +239,16 @@ class NavigationSettings(_Section):
         gt=0,
         description="visual-inertial initialisation: spread of the mean specific force over the keyframe intervals below which scale is not observable (VINS-Mono: 0.25)",
     )
+    vi_init_baro_min_climb_m: float = Field(
+        3.0,
+        gt=0,
+        description="visual-inertial initialisation: a barometer climb over the keyframe window at least this large checks the scale (10x a phone barometer's 0.3 m noise)",
+    )
+    vi_init_baro_scale_tolerance: float = Field(
+        0.25,
+        gt=0,
+        description="visual-inertial initialisation: a scale whose climb differs from the barometer's by more than this share is refused (the filter needs the scale within ~25 %)",
+    )
     vi_init_max_gravity_error_m_s2: float = Field(
         0.5, gt=0, description="visual-inertial initialisation: a solved gravity whose magnitude is further than this from g is refused (VINS-Mono: 0.5)"
     )

@@ -93,3 +93,15 @@ def test_fixes_without_lock_give_one_specific_warning_and_gps_off_is_off():
     assert result.estimates[-1].gps_trusted
     stage, result = _run_with_gps(_fixes(trajectory), SETTINGS.model_copy(update={"use_gps": False}))
     assert stage.enu_frame is None and not any(e.georeferenced for e in result.estimates)
+
+
+def test_the_heading_fit_recovers_a_turn_and_a_shift():
+    from evp.fusion.gps_heading import align_to_gps
+
+    local = np.random.default_rng(0).normal(size=(30, 3)) * [20.0, 10.0, 1.0]
+    yaw = 2.5
+    R = np.array([[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
+    fit = align_to_gps(local, local @ R.T + [100.0, -50.0, 3.0], gps_sigma_m=1.5)
+    np.testing.assert_allclose(fit.R, R, atol=1e-12)
+    np.testing.assert_allclose(fit.t, [100.0, -50.0, 3.0], atol=1e-9)
+    assert 0.05 < fit.yaw_sigma_rad < 0.1  # 1.5 m over ~22 m of spread

@@ -103,6 +103,7 @@ class NavigationStage:
         self.sensors_used: set[str] = set()
         self._imu: list[ImuSample] = []  # before the filter starts: the samples the initialisation needs
         self._keyframes: list[tuple[float, np.ndarray]] = []
+        self._baro: list[tuple[float, float]] = []  # before the filter starts: heights to check the initialisation's scale
         self._last_imu_stamp = -math.inf
         self._ground_height_m: float | None = None  # the range finder's ground, in world z, from its first reading
         self.enu_frame: EnuFrame | None = None  # the take-off point: the first GPS fix with a lock
@@ -124,6 +125,8 @@ class NavigationStage:
             if self.settings.use_gps:  # before the filter starts too: the first fix is the take-off point
                 self._observe_gps(record)
         elif self.filter is None:
+            if isinstance(record, BaroSample) and self.settings.use_baro and math.isfinite(record.altitude_m):
+                self._baro.append((record.timestamp, record.altitude_m))
             return
         elif isinstance(record, BaroSample) and self.settings.use_baro:
             self._update(BaroAltitude(record.timestamp, record.altitude_m))
@@ -269,7 +272,31 @@ class NavigationStage:
         if not alignment.observable:
             self.status = f"scale not yet observable: {alignment.reason}"
             return
+        contradiction = self._baro_contradiction(alignment)
+        if contradiction is not None:
+            self.status = f"scale not yet observable: {contradiction}"
+            return
         self._start(alignment)
+
+    def _baro_contradiction(self, alignment: InertialAlignment) -> str | None:
+        """Why the barometer's climb over the keyframe window contradicts the alignment's scale;
+        None when it agrees within ``vi_init_baro_scale_tolerance`` or the climb is too small to
+        tell. A downward camera climbing straight up moves along its optical axis: the alignment
+        can then find a consistent but wrong scale (5.8x off on the rendered drone flight's climb)."""
+        (t0, T0), (t1, T1) = self._keyframes[0], self._keyframes[-1]
+        del self._baro[: next((i for i, (t, _) in enumerate(self._baro) if t >= t0 - self.settings.vi_init_keyframe_interval_s), len(self._baro))]
+
+        def height(t: float) -> float:
+            near = [h for s, h in self._baro if abs(s - t) <= self.settings.vi_init_keyframe_interval_s]
+            return float(np.mean(near)) if near else math.nan
+
+        climb_baro = height(t1) - height(t0)
+        if not abs(climb_baro) >= self.settings.vi_init_baro_min_climb_m:  # NaN too: no barometer there
+            return None
+        climb_visual = alignment.scale * float((alignment.R_world_map @ (T1[:3, 3] - T0[:3, 3]))[2])
+        if abs(climb_visual / climb_baro - 1.0) <= self.settings.vi_init_baro_scale_tolerance:
+            return None
+        return f"the barometer climbed {climb_baro:.1f} m where the visual-inertial scale ({alignment.scale:.3g} m per map unit) gives {climb_visual:.1f} m"
 
     def _start(self, alignment: InertialAlignment) -> None:
         t, T_map_cam = self._keyframes[-1]
@@ -282,7 +309,7 @@ class NavigationStage:
             warning = self.filter.propagate(sample)
             if warning is not None:
                 self.warnings.append(warning.message)
-        self._imu, self._keyframes = [], []
+        self._imu, self._keyframes, self._baro = [], [], []
 
     def _start_covariance(self) -> np.ndarray:
         """The prior (settings) with what the alignment determined narrowed to the START_ sigmas."""

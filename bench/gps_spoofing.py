@@ -27,6 +27,7 @@ a downward camera descending onto the ground sees its texture grow out of focus.
 from __future__ import annotations
 
 import argparse
+import pickle
 import platform
 import tempfile
 from dataclasses import replace
@@ -132,7 +133,7 @@ def _record(case, stage, result, dataset, settings, window, reference_scale, t0)
     inside = (times >= window[0]) & (times <= window[1])
     return {
         "case": case,
-        "duration_s": dataset.times[-1] - dataset.times[0],
+        "duration_s": dataset.frame_times[-1] - dataset.frame_times[0],
         "window": f"{window[0] - t0:.0f}-{window[1] - t0:.0f}",
         "mean_m": float(errors[inside].mean()),
         "max_m": float(errors[inside].max()),
@@ -151,6 +152,7 @@ def main() -> None:
     parser.add_argument("--outage-start", type=float, default=80.0)
     parser.add_argument("--fps", type=float, default=10.0)
     parser.add_argument("--dataset", type=Path, help="a drone-flight render to use instead of rendering one")
+    parser.add_argument("--keep-answers", type=Path, help="pickle SLAM's answers here (a scratch file for tuning the stage)")
     args = parser.parse_args()
     command = (
         f"python bench/gps_spoofing.py --duration {args.duration:g} --spoof-start {args.spoof_start:g} --outage-start {args.outage_start:g} --fps {args.fps:g}"
@@ -169,9 +171,12 @@ def main() -> None:
         estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
         recorder = _Recorder(estimator)
         slam = run_dataset(dataset, estimator, stages=[recorder])
-        t0 = dataset.times[0]
+        if args.keep_answers:  # SLAM's answers, to rerun the stage alone (see --answers)
+            with args.keep_answers.open("wb") as handle:
+                pickle.dump((recorder.answers, slam.trajectory()), handle)
+        t0 = dataset.frame_times[0]
         reference_scale = evaluate(dataset.ground_truth, slam.trajectory(), settings.eval).alignment.scale
-        cruise_end = dataset.times[-1] - 60.0 / CLIMB_M_S - 2.0  # before the landing (60 m at 3 m/s, 2 s on the ground)
+        cruise_end = dataset.frame_times[-1] - 60.0 / CLIMB_M_S - 2.0  # before the landing (60 m at 3 m/s, 2 s on the ground)
         print(table.header())
         stage, result = _stage_run(dataset, recorder.answers, dataset.gps, settings)
         print(table.add(_record("spoofed", stage, result, dataset, settings, (t0 + args.spoof_start, cruise_end), reference_scale, t0)), flush=True)

@@ -221,6 +221,12 @@ class NavigationSettings(_Section):
     )
     use_baro: bool = Field(True, description="fuse the barometer's altitude when the dataset has one")
     use_range: bool = Field(True, description="fuse the range finder's height when the dataset has one")
+    use_gps: bool = Field(True, description="fuse GPS fixes (ENU at the take-off point) while the GPS monitor trusts them, when the dataset has GPS")
+    gps_align_min_spread_m: float = Field(
+        20.0,
+        gt=0,
+        description="GPS fixes paired with the filter's track give the world's heading once they spread this far (RMS from their centroid): 1.5 m GPS error over 20 m is ~4 deg, which GPS updates then refine",
+    )
     vi_init_keyframe_interval_s: float = Field(
         0.25, gt=0, description="visual-inertial initialisation: a tracked pose at least this long after the previous one is taken as a keyframe"
     )
@@ -232,6 +238,16 @@ class NavigationSettings(_Section):
         0.25,
         gt=0,
         description="visual-inertial initialisation: spread of the mean specific force over the keyframe intervals below which scale is not observable (VINS-Mono: 0.25)",
+    )
+    vi_init_baro_min_climb_m: float = Field(
+        3.0,
+        gt=0,
+        description="visual-inertial initialisation: a barometer climb over the keyframe window at least this large checks the scale (10x a phone barometer's 0.3 m noise)",
+    )
+    vi_init_baro_scale_tolerance: float = Field(
+        0.25,
+        gt=0,
+        description="visual-inertial initialisation: a scale whose climb differs from the barometer's by more than this share is refused (the filter needs the scale within ~25 %)",
     )
     vi_init_max_gravity_error_m_s2: float = Field(
         0.5, gt=0, description="visual-inertial initialisation: a solved gravity whose magnitude is further than this from g is refused (VINS-Mono: 0.5)"

@@ -94,4 +94,4 @@ def navigation_stage(dataset: Dataset, settings: Settings, estimator: Estimator)
         return None
     from evp.fusion.navigation_stage import NavigationStage
 
-    return NavigationStage(dataset.T_body_cam, settings.navigation, lambda: estimator.reset_counter)
+    return NavigationStage(dataset.T_body_cam, settings.navigation, lambda: estimator.reset_counter, settings.gps_monitor)

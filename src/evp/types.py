@@ -119,7 +119,8 @@ class PoseEstimate:
     An estimator answers in its own frame and scale (``metric`` False). A navigation stage that
     makes the pose metric and gravity-aligned sets ``metric`` and keeps the estimator's pose in
     ``T_visual_cam``; ``scale_known`` says its scale's uncertainty is below the settings' bound,
-    ``georeferenced`` that the world is ENU at a GPS origin.
+    ``georeferenced`` that the world is ENU at a GPS origin, ``gps_trusted`` that GPS is being fused
+    (the trust monitor finds it consistent).
     """
 
     timestamp: float
@@ -130,6 +131,7 @@ class PoseEstimate:
     metric: bool = False
     scale_known: bool = False
     georeferenced: bool = False
+    gps_trusted: bool = False
     T_visual_cam: np.ndarray | None = None
 
     @property

@@ -286,6 +286,42 @@ class NavigationFilter:
         self._replay(index)
         return True
 
+    def move_world(self, R: np.ndarray, t: np.ndarray, pivot: np.ndarray, translation_sigma_m: float, yaw_sigma_rad: float) -> None:
+        """Re-express every state of the history in a new world, ``x_new = R x + t`` (``R`` a
+        heading about z: the world turned to ENU once GPS gave the heading; georeferenced from
+        then on), and add the new
+        frame's uncertainty: a translation (``translation_sigma_m`` per axis) and a heading error
+        about ``pivot`` (new world), each moving the body and the visual map together."""
+        R, t, pivot = np.asarray(R, float), np.asarray(t, float), np.asarray(pivot, float)
+        rotate = np.eye(ERROR_DIM)
+        for block in (POSITION, VELOCITY, MAP_ATTITUDE, MAP_POSITION):  # world-frame errors; the body attitude's is local
+            rotate[block, block] = R
+        up = np.array([0.0, 0.0, 1.0])
+        for node in self._history:
+            x = node.state
+            x = replace(
+                x,
+                position=R @ x.position + t,
+                velocity=R @ x.velocity,
+                R_world_body=R @ x.R_world_body,
+                R_world_map=R @ x.R_world_map,
+                t_world_map=R @ x.t_world_map + t,
+                baro_bias=x.baro_bias - float(t[2]),
+                georeferenced=True,
+            )
+            yaw = np.zeros(ERROR_DIM)  # the errors a small heading error of the new frame makes
+            yaw[POSITION] = np.cross(up, x.position - pivot)
+            yaw[VELOCITY] = np.cross(up, x.velocity)
+            yaw[ATTITUDE] = x.R_world_body.T @ up
+            yaw[MAP_ATTITUDE] = up
+            yaw[MAP_POSITION] = np.cross(up, x.t_world_map - pivot)
+            shift = np.zeros((ERROR_DIM, 3))  # ... and a translation of it
+            shift[POSITION] = np.eye(3)
+            shift[MAP_POSITION] = np.eye(3)
+            shift[BARO_BIAS, 2] = -1.0
+            P = rotate @ node.covariance @ rotate.T + yaw_sigma_rad**2 * np.outer(yaw, yaw) + translation_sigma_m**2 * shift @ shift.T
+            node.state, node.covariance = x, 0.5 * (P + P.T)
+
     def _node_index(self, t: float) -> int | None:
         """The newest node at or before ``t``; None when ``t`` is before the oldest (or not finite)."""
         if not math.isfinite(t) or t < self._history[0].imu.timestamp:

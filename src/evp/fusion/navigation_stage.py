@@ -13,6 +13,20 @@ starts from the alignment at that frame, the IMU drives it, each tracked pose is
 metric camera pose, its 6x6 covariance and the flags (the estimator's pose kept in
 ``T_visual_cam``). A change of the estimator's reset counter is a jump of the visual poses, not
 motion: a relocalisation keeps the map's scale, a new map (SLAM restarted) forgets it.
+
+GPS (``use_gps``): the first fix with a lock is the take-off point, the origin of the ENU frame
+its fixes are converted to. The filter starts from vision and the IMU only (GPS alone does not
+start it: before the visual-inertial initialisation the estimates pass unchanged), in the map's
+levelled frame, heading unknown. The fixes from then on are paired with the filter's position
+until the pairs spread ``gps_align_min_spread_m`` horizontally; the heading and origin fitted to
+them (:func:`~evp.fusion.gps_heading.align_to_gps`) move the filter's world to ENU at the take-off
+point (:meth:`NavigationFilter.move_world`, their uncertainty added to the covariance). From then
+on every fix is checked by the seed-002 :class:`~evp.fusion.gps_monitor.GpsMonitor` against the
+filter's predicted position, and fused as a :class:`~evp.fusion.measurements.GpsPosition` only
+while the monitor says TRUSTED; the filter's chi-square gate is the second guard (a spoofer's slow
+pull-off is gated before the monitor's window mean grows past its bound). Fixes without a lock
+(NaN) are dropped with a warning; the monitor's events (spoofing alarm, GPS lost or back, trust
+restored) are kept in ``gps_monitor.events`` and told as warnings.
 """
 
 from __future__ import annotations
@@ -23,12 +37,15 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from evp.config import NavigationSettings
-from evp.fusion.measurements import BaroAltitude, RangeHeight, VisualPose
+from evp.config import MonitorSettings, NavigationSettings
+from evp.fusion.geodesy import EnuFrame
+from evp.fusion.gps_heading import WorldAlignment, align_to_gps, horizontal_spread
+from evp.fusion.gps_monitor import GpsMonitor, GpsTrust
+from evp.fusion.measurements import BaroAltitude, GpsPosition, RangeHeight, VisualPose
 from evp.fusion.nav_state import ATTITUDE, LOG_SCALE, MAP_ATTITUDE, MAP_POSITION, POSITION, VELOCITY
 from evp.fusion.navigation_filter import Innovation, NavigationFilter, NavigationOutput, initial_covariance
 from evp.fusion.visual_inertial_init import InertialAlignment, initialise_visual_inertial
-from evp.types import BaroSample, Frame, ImuSample, PoseEstimate, RangeSample, TrackingState
+from evp.types import BaroSample, Frame, GpsFix, ImuSample, PoseEstimate, RangeSample, TrackingState
 
 # 1-sigma uncertainties of the filter's start from a visual-inertial alignment. The world is the
 # map's frame levelled, so the position, the map's origin and the heading are known at the start
@@ -51,11 +68,28 @@ class NavigationRecord:
     visual: Innovation | None
 
 
+@dataclass(frozen=True)
+class GpsRecord:
+    """One fix with a lock: in ENU at the take-off point, the monitor's verdict (None before the
+    heading is known) and the filter's answer (None when it was not offered)."""
+
+    timestamp: float
+    enu: np.ndarray
+    trust: GpsTrust | None
+    update: Innovation | None
+
+
 class NavigationStage:
     """A pipeline stage (``observe`` telemetry, ``process`` estimates); see the module docstring.
     ``reset_counter`` reads the estimator's discontinuity counter (``Estimator.reset_counter``)."""
 
-    def __init__(self, T_body_cam: np.ndarray, settings: NavigationSettings | None = None, reset_counter: Callable[[], int] = lambda: 0):
+    def __init__(
+        self,
+        T_body_cam: np.ndarray,
+        settings: NavigationSettings | None = None,
+        reset_counter: Callable[[], int] = lambda: 0,
+        monitor_settings: MonitorSettings | None = None,
+    ):
         self.settings = settings or NavigationSettings()
         self.T_body_cam = np.asarray(T_body_cam, float)
         self._reset_counter = reset_counter
@@ -69,8 +103,17 @@ class NavigationStage:
         self.sensors_used: set[str] = set()
         self._imu: list[ImuSample] = []  # before the filter starts: the samples the initialisation needs
         self._keyframes: list[tuple[float, np.ndarray]] = []
+        self._baro: list[tuple[float, float]] = []  # before the filter starts: heights to check the initialisation's scale
         self._last_imu_stamp = -math.inf
         self._ground_height_m: float | None = None  # the range finder's ground, in world z, from its first reading
+        self.enu_frame: EnuFrame | None = None  # the take-off point: the first GPS fix with a lock
+        self.world_alignment: WorldAlignment | None = None  # how the filter's world became ENU
+        self.gps_monitor = GpsMonitor(monitor_settings or MonitorSettings())
+        self.gps_records: list[GpsRecord] = []
+        self._gps_pairs: list[tuple[np.ndarray, np.ndarray]] = []  # (filter position, GPS ENU) before the heading is known
+        self._gps_locked = True  # False from a fix without lock until one with it (one warning per loss)
+        self._travelled_m = 0.0
+        self._last_fix_position: np.ndarray | None = None
 
     # --- telemetry -----------------------------------------------------------------------------
 
@@ -78,7 +121,12 @@ class NavigationStage:
         """One telemetry record; kinds the stage does not fuse are ignored."""
         if isinstance(record, ImuSample):
             self._observe_imu(record)
+        elif isinstance(record, GpsFix):
+            if self.settings.use_gps:  # before the filter starts too: the first fix is the take-off point
+                self._observe_gps(record)
         elif self.filter is None:
+            if isinstance(record, BaroSample) and self.settings.use_baro and math.isfinite(record.altitude_m):
+                self._baro.append((record.timestamp, record.altitude_m))
             return
         elif isinstance(record, BaroSample) and self.settings.use_baro:
             self._update(BaroAltitude(record.timestamp, record.altitude_m))
@@ -111,6 +159,55 @@ class NavigationStage:
             self._ground_height_m = float(state.position[2] - sample.distance_m * state.R_world_body[2, 2])
         self._update(RangeHeight(sample.timestamp, sample.distance_m, self._ground_height_m))
 
+    def _observe_gps(self, fix: GpsFix) -> None:
+        geodetic = (fix.latitude_deg, fix.longitude_deg, fix.altitude_m)
+        if not all(math.isfinite(v) for v in (fix.timestamp, *geodetic)):
+            if self._gps_locked:
+                self.warnings.append(f"GPS fix at {fix.timestamp:.3f} s has no lock (NaN or infinite position): GPS not fused until a fix has one")
+            self._gps_locked = False
+            return
+        self._gps_locked = True
+        if self.enu_frame is None:
+            self.enu_frame = EnuFrame.at(fix)
+        if self.filter is None:
+            return
+        enu = self.enu_frame.to_enu(*geodetic)[0]
+        position = self.filter.state.position
+        if self._last_fix_position is not None:
+            self._travelled_m += float(np.linalg.norm(position[:2] - self._last_fix_position[:2]))
+        self._last_fix_position = position.copy()
+        if self.world_alignment is None:
+            self._gps_pairs.append((position.copy(), enu))
+            self.gps_records.append(GpsRecord(fix.timestamp, enu, None, None))
+            self._try_alignment(fix)
+            return
+        events = len(self.gps_monitor.events)
+        trust, _ = self.gps_monitor.update(fix.timestamp, enu[:2], position[:2], self._travelled_m)
+        self._tell_monitor_events(events)
+        update = None
+        if trust is GpsTrust.TRUSTED:
+            update = self._update(GpsPosition(fix.timestamp, tuple(enu), fix.horizontal_accuracy_m, fix.vertical_accuracy_m))
+        self.gps_records.append(GpsRecord(fix.timestamp, enu, trust, update))
+
+    def _try_alignment(self, fix: GpsFix) -> None:
+        """Turn the filter's world to ENU once the paired fixes spread enough to give the heading."""
+        local = np.array([p for p, _ in self._gps_pairs])
+        if horizontal_spread(local) < self.settings.gps_align_min_spread_m:
+            return
+        accuracy = fix.horizontal_accuracy_m
+        sigma = accuracy if math.isfinite(accuracy) and accuracy > 0 else self.settings.gps_default_sigma_m
+        alignment = align_to_gps(local, np.array([e for _, e in self._gps_pairs]), sigma)
+        self.filter.move_world(alignment.R, alignment.t, alignment.pivot, alignment.translation_sigma_m, alignment.yaw_sigma_rad)
+        if self._ground_height_m is not None:
+            self._ground_height_m += float(alignment.t[2])
+        self._last_fix_position = alignment.R @ self._last_fix_position + alignment.t
+        self.world_alignment, self._gps_pairs = alignment, []
+        self.status += f"; georeferenced at {fix.timestamp:.3f} s (heading from {alignment.spread_m:.0f} m of GPS track)"
+
+    def _tell_monitor_events(self, first: int) -> None:
+        for event in self.gps_monitor.events[first:]:
+            self.warnings.append(f"GPS at {event.timestamp:.3f} s: {event.message}")
+
     def _update(self, measurement) -> Innovation:
         innovation = self.filter.update(measurement)
         if innovation.accepted:
@@ -128,6 +225,10 @@ class NavigationStage:
                 self._collect(estimate)
             if self.filter is None:
                 return estimate
+        if self.world_alignment is not None:
+            events = len(self.gps_monitor.events)
+            self.gps_monitor.check_outage(estimate.timestamp)
+            self._tell_monitor_events(events)
         visual = self._update(VisualPose(estimate.timestamp, estimate.T_world_cam, self.T_body_cam)) if tracked else None
         output = self.filter.output(self.T_body_cam)
         self.records.append(NavigationRecord(output, visual))
@@ -138,8 +239,14 @@ class NavigationStage:
             metric=True,
             scale_known=output.scale_known,
             georeferenced=output.georeferenced,
+            gps_trusted=self.gps_trusted,
             T_visual_cam=estimate.T_world_cam,
         )
+
+    @property
+    def gps_trusted(self) -> bool:
+        """GPS is being fused: the world is ENU and the monitor trusts the fixes."""
+        return self.world_alignment is not None and self.gps_monitor.trust is GpsTrust.TRUSTED
 
     def _follow_resets(self, estimate: PoseEstimate) -> None:
         count = self._reset_counter()
@@ -165,7 +272,31 @@ class NavigationStage:
         if not alignment.observable:
             self.status = f"scale not yet observable: {alignment.reason}"
             return
+        contradiction = self._baro_contradiction(alignment)
+        if contradiction is not None:
+            self.status = f"scale not yet observable: {contradiction}"
+            return
         self._start(alignment)
+
+    def _baro_contradiction(self, alignment: InertialAlignment) -> str | None:
+        """Why the barometer's climb over the keyframe window contradicts the alignment's scale;
+        None when it agrees within ``vi_init_baro_scale_tolerance`` or the climb is too small to
+        tell. A downward camera climbing straight up moves along its optical axis: the alignment
+        can then find a consistent but wrong scale (5.8x off on the rendered drone flight's climb)."""
+        (t0, T0), (t1, T1) = self._keyframes[0], self._keyframes[-1]
+        del self._baro[: next((i for i, (t, _) in enumerate(self._baro) if t >= t0 - self.settings.vi_init_keyframe_interval_s), len(self._baro))]
+
+        def height(t: float) -> float:
+            near = [h for s, h in self._baro if abs(s - t) <= self.settings.vi_init_keyframe_interval_s]
+            return float(np.mean(near)) if near else math.nan
+
+        climb_baro = height(t1) - height(t0)
+        if not abs(climb_baro) >= self.settings.vi_init_baro_min_climb_m:  # NaN too: no barometer there
+            return None
+        climb_visual = alignment.scale * float((alignment.R_world_map @ (T1[:3, 3] - T0[:3, 3]))[2])
+        if abs(climb_visual / climb_baro - 1.0) <= self.settings.vi_init_baro_scale_tolerance:
+            return None
+        return f"the barometer climbed {climb_baro:.1f} m where the visual-inertial scale ({alignment.scale:.3g} m per map unit) gives {climb_visual:.1f} m"
 
     def _start(self, alignment: InertialAlignment) -> None:
         t, T_map_cam = self._keyframes[-1]
@@ -178,7 +309,7 @@ class NavigationStage:
             warning = self.filter.propagate(sample)
             if warning is not None:
                 self.warnings.append(warning.message)
-        self._imu, self._keyframes = [], []
+        self._imu, self._keyframes, self._baro = [], [], []
 
     def _start_covariance(self) -> np.ndarray:
         """The prior (settings) with what the alignment determined narrowed to the START_ sigmas."""

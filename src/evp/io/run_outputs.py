@@ -52,7 +52,8 @@ def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: 
     With a ``navigation`` stage, trajectory.tum is the fused metric, gravity-aligned trajectory
     (the estimator's while the stage never initialised), the estimator's own goes to
     trajectory_visual.tum, navigation.csv follows the filter, and metrics.json gains a
-    ``navigation`` section and ``ate_se3_rmse`` (:func:`navigation_metrics`); the top-level ATE
+    ``navigation`` section, ``ate_se3_rmse`` and, once georeferenced, ``horizontal_error_none_mean``
+    (no alignment; :func:`navigation_metrics`); the top-level ATE
     figures stay the estimator's trajectory's, as without the stage."""
     estimator = result.estimator
     out.mkdir(parents=True, exist_ok=True)
@@ -109,5 +110,7 @@ def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: 
         metrics["navigation"] = navigation_metrics(navigation, result, dataset, settings, out)
         if "ate_se3_rmse_m" in metrics["navigation"]:
             metrics["ate_se3_rmse"] = metrics["navigation"]["ate_se3_rmse_m"]
+        if "horizontal_error_mean_m" in metrics["navigation"]:
+            metrics["horizontal_error_none_mean"] = metrics["navigation"]["horizontal_error_mean_m"]
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return metrics

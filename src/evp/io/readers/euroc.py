@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from evp.calib.camera_files import load_yaml_mapping, read_camera
 from evp.errors import DatasetError
@@ -83,6 +84,7 @@ class EurocReader:
             dataset.T_body_cam = _t_imu_cam(mav0)
         self._extra_sensors(mav0, dataset)
         self._ground_truth(mav0, root, dataset)
+        self._geodetic_origin(root, dataset)
         leica = mav0 / "leica0" / "data.csv"
         if leica.is_file():
             rows, _, _ = read_table(leica, columns=4)
@@ -107,6 +109,16 @@ class EurocReader:
             dataset.wheel = [WheelOdometry(r[0] / 1e9, (float(r[1]), float(r[2])), float(r[3]), float(r[4])) for r in rows]
         if (mav0 / "wifi0" / "data.csv").is_file():
             dataset.wifi = read_wifi_csv(mav0 / "wifi0" / "data.csv")
+
+    @staticmethod
+    def _geodetic_origin(root: Path, dataset: Dataset) -> None:
+        """``evp sim``'s world is ENU at the geodetic origin its sim.yaml records."""
+        sim_yaml = root / "sim.yaml"
+        if not sim_yaml.is_file():
+            return
+        origin = (yaml.safe_load(sim_yaml.read_text()) or {}).get("geodetic_origin")
+        if origin:
+            dataset.enu_origin = (float(origin["latitude_deg"]), float(origin["longitude_deg"]), float(origin["altitude_m"]))
 
     def _ground_truth(self, mav0: Path, root: Path, dataset: Dataset) -> None:
         """Camera GT: body GT times cam0 extrinsics when the standard CSV exists, else a cam0 TUM file."""

@@ -1,0 +1,107 @@
+"""GPS through the navigation stage: exact visual poses and IMU of a known trajectory (as in
+test_navigation_stage.py) plus GPS fixes of the same trajectory, spoofed, jammed or without lock."""
+
+import numpy as np
+
+from evp.config import NavigationSettings
+from evp.fusion.geodesy import EnuFrame
+from evp.fusion.gps_monitor import GpsTrust
+from evp.types import GpsFix, PoseEstimate, TrackingState
+from tests.fusion.inertial_trajectory import SinusoidTrajectory, imu_times
+from tests.fusion.test_navigation_stage import FRAME_RATE, _run, map_pose
+
+ORIGIN = EnuFrame(43.7238, 10.3966, 4.0)  # the truth's world is ENU here
+DURATION_S = 25.0
+GPS_RATE_HZ = 10.0
+# the test trajectory cruises at ~1.1 m/s: 1.5 m of spread (RMS) is reached ~5 s after the start
+SETTINGS = NavigationSettings(gps_align_min_spread_m=1.5)
+
+
+def _fixes(trajectory, offset=lambda t: np.zeros(3), outages=(), no_lock=()):
+    """Exact fixes of the trajectory at 10 Hz, ``offset(t)`` (ENU, m) added; none inside ``outages``
+    and NaN ones inside ``no_lock`` ((start, end) seconds)."""
+    fixes = []
+    for t in np.arange(0.0, DURATION_S, 1.0 / GPS_RATE_HZ):
+        if any(a <= t < b for a, b in outages):
+            continue
+        lat, lon, alt = ORIGIN.to_geodetic(trajectory.position(t) + offset(t))[0]
+        if any(a <= t < b for a, b in no_lock):
+            lat = lon = alt = float("nan")
+        fixes.append(GpsFix(float(t), lat, lon, alt, 1.0, 2.0))
+    return fixes
+
+
+def _run_with_gps(fixes, settings=SETTINGS):
+    trajectory = SinusoidTrajectory()
+    times = np.arange(0.0, DURATION_S, 1.0 / FRAME_RATE)
+    estimates = [PoseEstimate(float(t), map_pose(trajectory, t), TrackingState.OK) for t in times]
+    telemetry = sorted(trajectory.imu(imu_times(DURATION_S)) + fixes, key=lambda r: r.timestamp)
+    return _run(estimates, telemetry, settings=settings)
+
+
+def _horizontal_errors(trajectory, stage, result):
+    """Horizontal error (m) of each georeferenced estimate against the truth in ENU at the take-off point."""
+    georeferenced = [e for e in result.estimates if e.georeferenced]
+    times = np.array([e.timestamp for e in georeferenced])
+    truth = stage.enu_frame.to_enu(*ORIGIN.to_geodetic(trajectory.position(times)).T)
+    from tests.fusion.test_navigation_filter import T_BODY_CAM
+
+    body = np.array([e.T_world_cam @ np.linalg.inv(T_BODY_CAM) for e in georeferenced])[:, :3, 3]
+    return times, np.linalg.norm(body[:, :2] - truth[:, :2], axis=1)
+
+
+def test_trusted_gps_puts_the_track_in_enu_at_the_take_off_point():
+    trajectory = SinusoidTrajectory()
+    stage, result = _run_with_gps(_fixes(trajectory))
+    assert stage.world_alignment is not None and stage.gps_monitor.trust is GpsTrust.TRUSTED
+    times, errors = _horizontal_errors(trajectory, stage, result)
+    assert len(times) > 300 and errors.max() < 0.05  # metres, no alignment at all
+    assert result.estimates[-1].gps_trusted and "gps" in stage.sensors_used
+    assert not stage.warnings
+
+
+def test_a_spoofers_pull_off_never_enters_the_state():
+    trajectory = SinusoidTrajectory()
+    start, rate = 12.0, 5.0  # the spoofer pulls GPS east at 5 m/s from 12 s: 65 m off at the end
+    stage, result = _run_with_gps(_fixes(trajectory, offset=lambda t: np.array([rate * max(0.0, t - start), 0.0, 0.0])))
+    times, errors = _horizontal_errors(trajectory, stage, result)
+    # the first second of pull-off (5 m) passes the filter's gate fix by fix and moves the state
+    # by ~0.7 m; then the gate refuses it, and 3.7 s after its start the monitor untrusts GPS
+    assert errors.max() < 1.0, errors.max()  # while GPS drifts 65 m
+    assert errors[-1] <= errors[times <= start + 2.0][-1] + 0.05  # nothing more of it after
+    assert [e.kind for e in stage.gps_monitor.events] == ["spoofing_alarm"]
+    assert not result.estimates[-1].gps_trusted and result.estimates[-1].georeferenced
+    late = [r for r in stage.gps_records if r.timestamp > start + 2.0]
+    assert late and not any(r.update is not None and r.update.accepted for r in late)
+
+
+def test_a_jamming_gap_keeps_the_filter_on_vision_and_imu():
+    trajectory = SinusoidTrajectory()
+    stage, result = _run_with_gps(_fixes(trajectory, outages=[(10.0, 14.5)]))
+    assert all(e.metric for e in result.estimates if e.timestamp >= stage.initialised_at)
+    times, errors = _horizontal_errors(trajectory, stage, result)
+    assert errors[(times > 10.0) & (times < 14.5)].max() < 0.05
+    # back after 4.5 s, trusted again after recovery_s (10 s) of consistent fixes
+    assert [e.kind for e in stage.gps_monitor.events] == ["gps_lost", "gps_back", "trust_restored"]
+    assert any("no GPS fix for" in w for w in stage.warnings)
+
+
+def test_fixes_without_lock_give_one_specific_warning_and_gps_off_is_off():
+    trajectory = SinusoidTrajectory()
+    stage, result = _run_with_gps(_fixes(trajectory, no_lock=[(8.0, 9.0)]))
+    assert [w for w in stage.warnings if "no lock" in w] == ["GPS fix at 8.000 s has no lock (NaN or infinite position): GPS not fused until a fix has one"]
+    assert result.estimates[-1].gps_trusted
+    stage, result = _run_with_gps(_fixes(trajectory), SETTINGS.model_copy(update={"use_gps": False}))
+    assert stage.enu_frame is None and not any(e.georeferenced for e in result.estimates)
+
+
+def test_the_heading_fit_recovers_a_turn_and_a_shift():
+    from evp.fusion.gps_heading import align_to_gps
+
+    local = np.random.default_rng(0).normal(size=(30, 3)) * [20.0, 10.0, 1.0]
+    yaw = 2.5
+    R = np.array([[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
+    fit = align_to_gps(local, local @ R.T + [100.0, -50.0, 3.0], gps_sigma_m=1.5)
+    np.testing.assert_allclose(fit.R, R, atol=1e-12)
+    np.testing.assert_allclose(fit.t, [100.0, -50.0, 3.0], atol=1e-9)
+    assert 0.05 < fit.yaw_sigma_rad < 0.1  # 1.5 m over ~22 m of spread

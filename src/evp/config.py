@@ -227,6 +227,15 @@ class NavigationSettings(_Section):
         gt=0,
         description="GPS fixes paired with the filter's track give the world's heading once they spread this far (RMS from their centroid): 1.5 m GPS error over 20 m is ~4 deg, which GPS updates then refine",
     )
+    use_wheels: bool = Field(
+        True,
+        description="fuse the wheels' forward speed (with the non-holonomic constraint) and yaw rate when the dataset has them, and start from the wheel odometry's scale while the visual-inertial one is not observable",
+    )
+    wheel_init_min_distance_m: float = Field(
+        0.3,
+        gt=0,
+        description="start from wheel odometry: the wheels must cover this much path over the keyframe window (the scale's relative error is about the encoder error over it)",
+    )
     vi_init_keyframe_interval_s: float = Field(
         0.25, gt=0, description="visual-inertial initialisation: a tracked pose at least this long after the previous one is taken as a keyframe"
     )

@@ -41,11 +41,12 @@ from evp.config import MonitorSettings, NavigationSettings
 from evp.fusion.geodesy import EnuFrame
 from evp.fusion.gps_heading import WorldAlignment, align_to_gps, horizontal_spread
 from evp.fusion.gps_monitor import GpsMonitor, GpsTrust
-from evp.fusion.measurements import BaroAltitude, GpsPosition, RangeHeight, VisualPose
+from evp.fusion.measurements import BaroAltitude, GpsPosition, RangeHeight, VisualPose, WheelSpeed, YawRate
 from evp.fusion.nav_state import ATTITUDE, LOG_SCALE, MAP_ATTITUDE, MAP_POSITION, POSITION, VELOCITY
 from evp.fusion.navigation_filter import Innovation, NavigationFilter, NavigationOutput, initial_covariance
 from evp.fusion.visual_inertial_init import InertialAlignment, initialise_visual_inertial
-from evp.types import BaroSample, Frame, GpsFix, ImuSample, PoseEstimate, RangeSample, TrackingState
+from evp.fusion.wheel_init import initialise_from_wheels
+from evp.types import BaroSample, Frame, GpsFix, ImuSample, PoseEstimate, RangeSample, TrackingState, WheelOdometry
 
 # 1-sigma uncertainties of the filter's start from a visual-inertial alignment. The world is the
 # map's frame levelled, so the position, the map's origin and the heading are known at the start
@@ -102,6 +103,7 @@ class NavigationStage:
         self.records: list[NavigationRecord] = []
         self.sensors_used: set[str] = set()
         self._imu: list[ImuSample] = []  # before the filter starts: the samples the initialisation needs
+        self._wheel: list[WheelOdometry] = []  # before the filter starts: the wheel records, for the wheel start
         self._keyframes: list[tuple[float, np.ndarray]] = []
         self._baro: list[tuple[float, float]] = []  # before the filter starts: heights to check the initialisation's scale
         self._last_imu_stamp = -math.inf
@@ -124,6 +126,8 @@ class NavigationStage:
         elif isinstance(record, GpsFix):
             if self.settings.use_gps:  # before the filter starts too: the first fix is the take-off point
                 self._observe_gps(record)
+        elif isinstance(record, WheelOdometry) and self.settings.use_wheels:
+            self._observe_wheels(record)
         elif self.filter is None:
             if isinstance(record, BaroSample) and self.settings.use_baro and math.isfinite(record.altitude_m):
                 self._baro.append((record.timestamp, record.altitude_m))
@@ -208,6 +212,17 @@ class NavigationStage:
         for event in self.gps_monitor.events[first:]:
             self.warnings.append(f"GPS at {event.timestamp:.3f} s: {event.message}")
 
+    def _observe_wheels(self, record: WheelOdometry) -> None:
+        """Before the start: kept for :func:`initialise_from_wheels`; then the forward speed with
+        the non-holonomic constraint (the constraint alone when the record has no speed) and the
+        yaw rate, in the IMU's axes (see :mod:`evp.fusion.wheel_init`)."""
+        if self.filter is None:
+            self._wheel.append(record)
+            return
+        self._update(WheelSpeed(record.timestamp, record.forward_speed_m_s))
+        if math.isfinite(record.yaw_rate_rad_s):
+            self._update(YawRate(record.timestamp, record.yaw_rate_rad_s))
+
     def _update(self, measurement) -> Innovation:
         innovation = self.filter.update(measurement)
         if innovation.accepted:
@@ -268,7 +283,15 @@ class NavigationStage:
         oldest = self._keyframes[0][0]
         keep = next((i for i, s in enumerate(self._imu) if s.timestamp >= oldest), len(self._imu))
         del self._imu[: max(0, keep - 1)]  # one sample at or before the oldest keyframe stays
+        keep = next((i for i, w in enumerate(self._wheel) if w.timestamp >= oldest), len(self._wheel))
+        del self._wheel[: max(0, keep - 1)]  # likewise one wheel record
         alignment = initialise_visual_inertial(self._keyframes, self._imu, self.T_body_cam, self.settings)
+        if not alignment.observable and self._wheel:
+            wheels = initialise_from_wheels(self._keyframes, self._wheel, self._imu, self.T_body_cam, self.settings)
+            if wheels.observable:
+                self._start(wheels, "wheel odometry")
+                return
+            alignment = replace(alignment, reason=f"{alignment.reason}; wheels: {wheels.reason}")
         if not alignment.observable:
             self.status = f"scale not yet observable: {alignment.reason}"
             return
@@ -276,7 +299,7 @@ class NavigationStage:
         if contradiction is not None:
             self.status = f"scale not yet observable: {contradiction}"
             return
-        self._start(alignment)
+        self._start(alignment, "visual-inertial")
 
     def _baro_contradiction(self, alignment: InertialAlignment) -> str | None:
         """Why the barometer's climb over the keyframe window contradicts the alignment's scale;
@@ -298,18 +321,21 @@ class NavigationStage:
             return None
         return f"the barometer climbed {climb_baro:.1f} m where the visual-inertial scale ({alignment.scale:.3g} m per map unit) gives {climb_visual:.1f} m"
 
-    def _start(self, alignment: InertialAlignment) -> None:
+    def _start(self, alignment: InertialAlignment, source: str) -> None:
         t, T_map_cam = self._keyframes[-1]
         state = alignment.nav_state(t, T_map_cam, self.T_body_cam, alignment.velocities_map[-1])
         self.filter = NavigationFilter(state, self.settings, self._start_covariance())
         self.alignment, self.initialised_at = alignment, t
-        self.status = f"initialised at {t:.3f} s: scale {alignment.scale:.4g} m per map unit"
+        self.status = f"initialised at {t:.3f} s from {source}: scale {alignment.scale:.4g} m per map unit"
         start = next((i for i in range(len(self._imu) - 1, -1, -1) if self._imu[i].timestamp <= t), 0)
         for sample in self._imu[start:]:
             warning = self.filter.propagate(sample)
             if warning is not None:
                 self.warnings.append(warning.message)
-        self._imu, self._keyframes, self._baro = [], [], []
+        start_wheel = next((i for i, w in enumerate(self._wheel) if w.timestamp > t), len(self._wheel))
+        for record in self._wheel[start_wheel:]:
+            self._observe_wheels(record)
+        self._imu, self._keyframes, self._wheel, self._baro = [], [], [], []
 
     def _start_covariance(self) -> np.ndarray:
         """The prior (settings) with what the alignment determined narrowed to the START_ sigmas."""

@@ -65,8 +65,10 @@ class BaroConfig(_Config):
 
 
 class WheelConfig(_Config):
-    """Differential drive: left/right wheel speeds from the body velocity and yaw rate, quantised by
-    the encoder resolution, with white noise; the yaw rate comes from a gyro with bias and noise."""
+    """Differential drive: left/right wheel speeds from the body velocity and yaw rate, with white
+    noise, as an encoder reports them: the ticks counted in each sample's interval (the count
+    carries its remainder over, so the speeds are multiples of one tick per interval and their
+    mean is unbiased); the yaw rate comes from a gyro with bias and noise."""
 
     rate_hz: float = Field(50.0, gt=0)
     wheel_base_m: float = Field(0.3, gt=0)
@@ -166,13 +168,21 @@ def simulate_baro(state: MotionState, config: BaroConfig, origin_alt_m: float, r
     return [BaroSample(float(t), float(p), float(a)) for t, p, a in zip(state.time, pressure, altitude)]
 
 
+def _encoder(speed: np.ndarray, quantum: float) -> np.ndarray:
+    """The speeds an encoder reports for these true ones: whole ticks counted per sample (one tick
+    per sample is ``quantum`` m/s), the fraction of a tick carried over to the next sample.
+    Rounding each sample's speed instead would bias a constant speed by up to half a tick."""
+    ticks = np.floor(np.cumsum(speed / quantum) + 0.5)
+    return np.diff(ticks, prepend=0.0) * quantum
+
+
 def simulate_wheels(state: MotionState, config: WheelConfig, rng: np.random.Generator) -> list[WheelOdometry]:
     forward = np.einsum("ij,ij->i", state.rotation.inv().apply(state.velocity), np.tile([1.0, 0.0, 0.0], (len(state.time), 1)))
     yaw_rate = state.body_rate[:, 2]
     quantum = 2 * math.pi * config.wheel_radius_m / config.ticks_per_rev * config.rate_hz  # speed of one tick per sample
     left = forward - yaw_rate * config.wheel_base_m / 2 + rng.normal(0, config.speed_noise_m_s, len(forward))
     right = forward + yaw_rate * config.wheel_base_m / 2 + rng.normal(0, config.speed_noise_m_s, len(forward))
-    left, right = np.round(left / quantum) * quantum, np.round(right / quantum) * quantum
+    left, right = _encoder(left, quantum), _encoder(right, quantum)
     gyro = yaw_rate + config.gyro_bias_rad_s + rng.normal(0, config.gyro_noise_rad_s, len(forward))
     return [WheelOdometry(float(t), (float(lw), float(rw)), float((lw + rw) / 2), float(g)) for t, lw, rw, g in zip(state.time, left, right, gyro)]
 

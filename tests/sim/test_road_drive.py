@@ -36,7 +36,7 @@ def test_the_road_fills_the_lower_half_and_the_sky_the_top(drive):
         ray /= np.linalg.norm(ray)
         assert ray_distance(drive.scene, pose[:3, 3], ray) * -ray[2] == pytest.approx(1.5, abs=0.01)
     asphalt = image[-30:, int(camera.cx) - 40 : int(camera.cx) + 40]
-    assert 40 < np.median(asphalt) < 130 and asphalt.std() > 5  # dark, textured asphalt
+    assert 40 < np.median(asphalt) < 130 and asphalt.std() > 3  # dark, textured asphalt (no sensor noise here)
     assert (image[:5] == drive.scene.background).mean() > 0.05  # sky above
 
 

@@ -172,7 +172,7 @@ class OrbExtractor:
                 return
             found[level] = self._extract_level(level, pyramid[level], budget)
 
-    def _extract_level(self, level: int, image: np.ndarray, budget: int) -> tuple[np.ndarray, ...] | None:
+    def _extract_level(self, level: int, image: np.ndarray, budget: int = 1) -> tuple[np.ndarray, ...] | None:
         detector = self._level_detectors[level]
         keypoints = detector.detect(image, self._level_masks[level])
         if not keypoints:
@@ -190,7 +190,7 @@ class OrbExtractor:
             descriptors,
         )
 
-    def _distribute(self, xy: np.ndarray, octave: np.ndarray, response: np.ndarray, budget: int) -> np.ndarray:
+    def _distribute(self, xy: np.ndarray, octave: np.ndarray, response: np.ndarray, budget: int = 1) -> np.ndarray:
         """Indices of the kept keypoints, level by level: round robin over grid cells, strongest
         first in each cell, until the level's quota is filled."""
         strong = response >= self.settings.ini_fast_threshold

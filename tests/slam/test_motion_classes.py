@@ -1,8 +1,8 @@
 """Motion and camera classes the engine was not tuned on, rendered with exact ground truth and run
 with the default configuration: a car driving a town road at 20 m/s seen at 10 Hz (2 m between
-frames, near points leaving the view at every frame), and the indoor circle through a
-150-degree fisheye. Issue 29's targets, on short clips (bench/motion_classes.py and
-bench/camera_models.py run the long ones)."""
+frames, near points leaving the view at every frame). Issue 29's targets on a short clip
+(bench/motion_classes.py runs the long ones; bench/camera_models.py the fisheye, whose renders
+are too slow for the suite)."""
 
 import numpy as np
 
@@ -13,7 +13,6 @@ from evp.pipeline import run_dataset
 from evp.run_setup import make_estimator
 from evp.sim.generate import generate
 from evp.sim.scenarios import SimOptions
-from tests.slam.test_system import CIRCLE
 
 
 def _run(folder):
@@ -26,7 +25,7 @@ def _run(folder):
 
 
 def test_a_car_at_20_m_s_seen_at_10_hz_starts_within_a_second_and_keeps_tracking(tmp_path):
-    generate("road-drive", SimOptions(duration_s=5.0, fps=10.0, seed=1), tmp_path, workers=2)
+    generate("road-drive", SimOptions(duration_s=4.0, fps=10.0, seed=1), tmp_path, workers=2)
     dataset, result, trajectory, rmse = _run(tmp_path)
     stamps = [estimate.timestamp for estimate in result.estimates]
     assert stamps[result.init_frame] - stamps[0] <= 1.0
@@ -34,16 +33,5 @@ def test_a_car_at_20_m_s_seen_at_10_hz_starts_within_a_second_and_keeps_tracking
     gt = dataset.ground_truth
     covered = (gt.timestamps >= trajectory.timestamps[0]) & (gt.timestamps <= trajectory.timestamps[-1])
     path = np.linalg.norm(np.diff(gt.positions[covered], axis=0), axis=1).sum()
-    assert path > 80.0  # about 100 m driven
+    assert path > 60.0  # about 80 m driven
     assert rmse <= 0.01 * path
-
-
-def test_a_fisheye_circle_tracks_as_the_pinhole_one_does(tmp_path):
-    """The 150-degree fisheye (TUM VI's lens coefficients) on test_system's noise-free circle:
-    features within 70 degrees of the axis, the same guard as the pinhole's ATE."""
-    generate("circle-indoor", CIRCLE.model_copy(update={"lens": "fisheye"}), tmp_path, workers=2)
-    dataset, result, trajectory, rmse = _run(tmp_path)
-    assert dataset.camera.lens == "equidistant"
-    moving = sum(estimate.timestamp - result.estimates[0].timestamp > 2.0 for estimate in result.estimates)
-    assert len(result.tracked) >= 0.9 * moving
-    assert rmse < 0.02

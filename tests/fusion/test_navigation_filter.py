@@ -6,9 +6,10 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from evp.config import NavigationSettings
-from evp.fusion.measurements import BaroAltitude, BeaconRange, GpsPosition, RangeHeight, Refusal, VisualPose, WheelSpeed, YawRate
+from evp.fusion.innovation import UpdateStatus
+from evp.fusion.measurements import BaroAltitude, BeaconDistance, GpsPosition, RangeHeight, Refusal, VisualPose, WheelSpeed, YawRate
 from evp.fusion.nav_state import ERROR_DIM, NavState, so3_log
-from evp.fusion.navigation_filter import NavigationFilter, UpdateStatus
+from evp.fusion.navigation_filter import NavigationFilter
 from evp.types import ImuSample
 from tests.fusion.inertial_trajectory import SinusoidTrajectory, imu_times
 
@@ -258,7 +259,7 @@ MEASUREMENTS = [
     GpsPosition(0.0, (1.0, 2.0, 3.0), 1.0, 1.0, velocity_enu=(0.5, 0.0, 0.0), antenna_body=(0.1, 0.2, 0.3)),
     WheelSpeed(0.0, 2.0, Rotation.from_rotvec([0.0, 0.1, 0.2]).as_matrix()),
     YawRate(0.0, 0.3),
-    BeaconRange(0.0, (10.0, 5.0, 1.0), 12.0, 0.2, (0.1, 0.0, 0.05)),
+    BeaconDistance(0.0, (10.0, 5.0, 1.0), 12.0, 0.2, (0.1, 0.0, 0.05)),
 ]
 
 

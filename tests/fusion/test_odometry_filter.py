@@ -67,7 +67,7 @@ def test_odometry_alone_drifts_and_the_gate_rejects_an_outlier():
     outlier = BeaconRange(30.05, "b", 80.0)
     fused = run(odometry, [*ranges, outlier], flt)
     assert np.linalg.norm([fused[-1].x - xy[-1, 0], fused[-1].y - xy[-1, 1]]) < np.linalg.norm([alone[-1].x - xy[-1, 0], alone[-1].y - xy[-1, 1]])
-    rejected = {(i.timestamp, i.source): i.nis for i in flt.innovations if not i.accepted}
+    rejected = {(i.timestamp, i.kind): i.nis for i in flt.innovations if not i.accepted}
     assert rejected[(30.05, "range:b")] > 100 and len(rejected) <= 4  # and a few consistent ones past 3 sigma
 
 

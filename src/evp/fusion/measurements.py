@@ -206,7 +206,7 @@ class YawRate:
 
 
 @dataclass(frozen=True)
-class BeaconRange:
+class BeaconDistance:
     """Range (m) from the tag at ``tag_body`` (IMU frame) to a fixed beacon at a known world
     position, minus a known ``bias_m`` (e.g. UWB antenna delay, estimated beforehand)."""
 
@@ -234,4 +234,4 @@ class BeaconRange:
         return Linearisation(residual, H, np.array([[_sigma(self.sigma_m, s.beacon_range_sigma_m) ** 2]]))
 
 
-Measurement = VisualPose | BaroAltitude | RangeHeight | GpsPosition | WheelSpeed | YawRate | BeaconRange
+Measurement = VisualPose | BaroAltitude | RangeHeight | GpsPosition | WheelSpeed | YawRate | BeaconDistance

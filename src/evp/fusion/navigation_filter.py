@@ -24,14 +24,13 @@ correlation with the body pose), so the jump never enters the body state as moti
 
 from __future__ import annotations
 
-import enum
 import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.stats import chi2
 
 from evp.config import NavigationSettings
+from evp.fusion.innovation import Innovation, UpdateStatus, gated_innovation
 from evp.fusion.measurements import BaroAltitude, GpsPosition, Measurement, Refusal, VisualPose
 from evp.fusion.nav_state import (
     ACCEL_BIAS,
@@ -51,33 +50,6 @@ from evp.fusion.nav_state import (
 )
 from evp.fusion.strapdown import IMU_DIM, ImuNoise, imu_vectors, strapdown_step
 from evp.types import ImuSample
-
-
-class UpdateStatus(enum.Enum):
-    ACCEPTED = "accepted"
-    GATED = "gated"  # innovation beyond the chi-square gate
-    REFUSED = "refused"  # the reading itself is unusable (NaN, out of range, tilted)
-    TOO_OLD = "too_old"  # older than the delayed horizon, or than the first IMU sample
-    NO_IMU = "no_imu"  # no IMU sample yet: nothing to fuse it into
-
-
-@dataclass(frozen=True)
-class Innovation:
-    """What one update did: residual and its covariance ``S``, the normalised innovation squared
-    ``nis = r' S^-1 r`` against the gate's ``threshold``, and why it was not fused if it was not."""
-
-    timestamp: float
-    kind: str
-    status: UpdateStatus
-    residual: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    covariance: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
-    nis: float = float("nan")
-    threshold: float = float("nan")
-    message: str = ""
-
-    @property
-    def accepted(self) -> bool:
-        return self.status is UpdateStatus.ACCEPTED
 
 
 @dataclass(frozen=True)
@@ -166,7 +138,6 @@ class NavigationFilter:
         self._noise_per_second[MAP_POSITION] = s.map_position_random_walk**2
         self._noise_per_second[BARO_BIAS] = s.baro_bias_random_walk**2
         self._history: list[_Node] = []
-        self._thresholds: dict[int, float] = {}
 
     # --- state ---------------------------------------------------------------------------------
 
@@ -367,14 +338,9 @@ class NavigationFilter:
             return Innovation(measurement.timestamp, measurement.kind, UpdateStatus.REFUSED, message=lin.reason), x, P
         H, r = lin.jacobian, lin.residual
         PHt = P @ H.T
-        S = H @ PHt + lin.noise
-        S_inv = np.linalg.inv(S)
-        nis = float(r @ S_inv @ r)
-        threshold = self._threshold(len(r))
-        status = UpdateStatus.ACCEPTED if (nis <= threshold or not gate) else UpdateStatus.GATED
-        innovation = Innovation(measurement.timestamp, measurement.kind, status, r, S, nis, threshold)
-        if status is not UpdateStatus.ACCEPTED:
-            return replace(innovation, message=f"normalised innovation squared {nis:.1f} > gate {threshold:.1f}"), node.state, node.covariance
+        innovation, S_inv = gated_innovation(measurement.timestamp, measurement.kind, r, H @ PHt + lin.noise, self.settings.gate_probability, gate)
+        if not innovation.accepted:
+            return innovation, node.state, node.covariance
         K = PHt @ S_inv
         I_KH = np.eye(ERROR_DIM) - K @ H
         P = I_KH @ P @ I_KH.T + K @ lin.noise @ K.T
@@ -393,8 +359,3 @@ class NavigationFilter:
         if not np.isfinite(R_world_map).all() or not np.isfinite(t_world_map).all():
             return x, P
         return replace(x, R_world_map=R_world_map, t_world_map=t_world_map, map_anchored=True), self._to_prior(P, MAP_POSE)
-
-    def _threshold(self, dof: int) -> float:
-        if dof not in self._thresholds:
-            self._thresholds[dof] = float(chi2.ppf(self.settings.gate_probability, dof))
-        return self._thresholds[dof]

@@ -42,9 +42,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2
 
 from evp.fusion.geodesy import EnuFrame
+from evp.fusion.innovation import Innovation, gated_innovation
 from evp.types import BeaconRange, GpsFix, WheelOdometry
 
 X, Y, YAW, SCALE, BIAS, RANGE_SCALE = range(6)
@@ -81,19 +81,6 @@ class PlanarPose:
     yaw: float
     position_sigma_m: float = 0.1
     yaw_sigma_rad: float = 0.05
-
-
-@dataclass(frozen=True)
-class Innovation:
-    """One update's residual (measured - predicted), its normalised squared size (NIS, chi-square
-    with len(residual) degrees of freedom when the filter is consistent) and whether the gate
-    let it in."""
-
-    timestamp: float
-    source: str  # "range:<beacon id>" or "gnss"
-    residual: tuple[float, ...]
-    nis: float
-    accepted: bool
 
 
 @dataclass(frozen=True)
@@ -274,13 +261,11 @@ class OdometryFilter:
             )
             R = np.eye(2) * sigma**2
             source = "gnss"
-        S = H @ self.P @ H.T + R
-        nis = float(residual @ np.linalg.solve(S, residual))
-        accepted = nis <= chi2.ppf(self.noise.gate_probability, len(residual))
-        self.innovations.append(Innovation(float(record.timestamp), source, tuple(float(v) for v in residual), nis, bool(accepted)))
-        if not accepted:
+        innovation, S_inv = gated_innovation(float(record.timestamp), source, residual, H @ self.P @ H.T + R, self.noise.gate_probability)
+        self.innovations.append(innovation)
+        if not innovation.accepted:
             return
-        K = self.P @ H.T @ np.linalg.inv(S)
+        K = self.P @ H.T @ S_inv
         self.x += K @ residual
         I_KH = np.eye(n) - K @ H
         self.P = I_KH @ self.P @ I_KH.T + K @ R @ K.T  # Joseph form: stays symmetric positive

@@ -105,6 +105,11 @@ class SlamSettings(_Section):
     )
     keyframe_max_frames: int = Field(30, ge=1, description="a keyframe at least this often (frames) when tracking is weak")
     keyframe_ref_ratio: float = Field(0.9, gt=0, lt=1, description="a keyframe when tracked points fall below this share of the reference keyframe's")
+    keyframe_min_interval_s: float = Field(
+        0.08,
+        ge=0,
+        description="an idle mapper takes a keyframe no sooner than this after the last (a weak frame still gets one at once): a live ORB-SLAM mapper is busy about 0.1 s per keyframe, so at 30 Hz and over inline mapping ORB-SLAM's idle rule took one almost every frame and new points came from short baselines",
+    )
     covisible_keyframes: int = Field(10, ge=2, description="neighbours used to triangulate new points")
     new_point_min_parallax_deg: float = Field(
         2.0,
@@ -219,6 +224,10 @@ class NavigationSettings(_Section):
     enabled: bool = Field(
         True, description="evp run: fuse the IMU (and barometer, range finder) with SLAM when the dataset has an IMU and its camera extrinsic"
     )
+    refine_offline: bool = Field(
+        True,
+        description="evp run: once the estimator has refined its trajectory (SLAM's final bundle adjustment, loops closed), run the stage again on it with the same telemetry; trajectory.tum is then that pass, trajectory_live.tum the fused poses as answered live",
+    )
     use_baro: bool = Field(True, description="fuse the barometer's altitude when the dataset has one")
     use_range: bool = Field(True, description="fuse the range finder's height when the dataset has one")
     use_gps: bool = Field(True, description="fuse GPS fixes (ENU at the take-off point) while the GPS monitor trusts them, when the dataset has GPS")
@@ -244,9 +253,9 @@ class NavigationSettings(_Section):
     )
     vi_init_min_keyframes: int = Field(5, ge=3, description="visual-inertial initialisation: keyframes needed before gravity and scale are solved for")
     vi_init_min_acceleration_std_m_s2: float = Field(
-        0.25,
+        0.1,
         gt=0,
-        description="visual-inertial initialisation: spread of the mean specific force over the keyframe intervals below which scale is not observable (VINS-Mono: 0.25)",
+        description="visual-inertial initialisation: spread of the mean specific force over the keyframe intervals below which scale is not observable (VINS-Mono computes the same at 0.25 but only logs it); whether the scale is determined is decided by its uncertainty (vi_init_max_scale_sigma)",
     )
     vi_init_baro_min_climb_m: float = Field(
         3.0,
@@ -257,6 +266,11 @@ class NavigationSettings(_Section):
         0.25,
         gt=0,
         description="visual-inertial initialisation: a scale whose climb differs from the barometer's by more than this share is refused (the filter needs the scale within ~25 %)",
+    )
+    vi_init_max_scale_sigma: float = Field(
+        0.1,
+        gt=0,
+        description="visual-inertial initialisation: a scale whose least-squares 1-sigma is above this share is not yet determined (the filter starts with this scale uncertainty); a walker's first steps after standing gave 0.39 m/unit for 1.26",
     )
     vi_init_max_gravity_error_m_s2: float = Field(
         0.5, gt=0, description="visual-inertial initialisation: a solved gravity whose magnitude is further than this from g is refused (VINS-Mono: 0.5)"

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from evp.types import CameraModel, Frame, PoseEstimate
+from evp.types import CameraModel, Frame, PoseEstimate, TrackingState
 
 
 class Estimator(ABC):
@@ -62,3 +62,23 @@ class Estimator(ABC):
     def report(self) -> dict[str, Any]:
         """Events worth writing into a run's metrics (closed loops...), JSON-ready."""
         return {}
+
+
+class GivenPoses(Estimator):
+    """Answers each frame with the pose a trajectory already holds at its time, and ``LOST`` where
+    it holds none (``NOT_INITIALIZED`` before its first pose): the pipeline's stages run again on poses estimated before (an offline run's
+    refined trajectory, a test's or bench's truth). The images are not looked at."""
+
+    def __init__(self, timestamps: np.ndarray, T_world_cam: np.ndarray, tolerance_s: float = 1e-6):
+        order = np.argsort(timestamps)
+        self.timestamps = np.asarray(timestamps, float)[order]
+        self.poses = np.asarray(T_world_cam, float).reshape(-1, 4, 4)[order]
+        self.tolerance_s = tolerance_s
+
+    def feed(self, frame: Frame) -> PoseEstimate:
+        index = int(np.searchsorted(self.timestamps, frame.timestamp))
+        nearest = min((i for i in (index - 1, index) if 0 <= i < len(self.timestamps)), key=lambda i: abs(self.timestamps[i] - frame.timestamp), default=None)
+        if nearest is None or abs(self.timestamps[nearest] - frame.timestamp) > self.tolerance_s:
+            started = len(self.timestamps) and frame.timestamp > self.timestamps[0]
+            return PoseEstimate(frame.timestamp, np.eye(4), TrackingState.LOST if started else TrackingState.NOT_INITIALIZED)
+        return PoseEstimate(frame.timestamp, self.poses[nearest].copy(), TrackingState.OK, 100)

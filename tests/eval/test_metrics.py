@@ -59,6 +59,8 @@ def test_association_applies_offset_and_max_difference():
     est = Trajectory(ref.positions[::2], ref.quats_xyzw[::2], ref.timestamps[::2] - 0.55, "est")
     with pytest.raises(EvaluationError, match="no poses matched"):
         associate(ref, est, max_diff=0.01)
+    with pytest.raises(EvaluationError, match="the estimate trajectory has no poses"):
+        associate(ref, est.select(np.array([], int)))
     ref_m, est_m = associate(ref, est, max_diff=0.01, offset=0.55)
     assert len(ref_m) == 100
     assert np.allclose(ref_m.positions, est_m.positions)

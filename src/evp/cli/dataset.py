@@ -48,7 +48,7 @@ def run(
     from evp.io.registry import open_dataset
     from evp.io.run_outputs import write_outputs
     from evp.pipeline import run_dataset
-    from evp.run_setup import camera_for, make_estimator, navigation_off, navigation_stage, resolve_settings
+    from evp.run_setup import camera_for, make_estimator, navigation_off, navigation_on_refined, navigation_stage, resolve_settings
 
     settings = load_settings(config)
     dataset = open_dataset(dataset_path, fmt)
@@ -70,7 +70,10 @@ def run(
     # keeps it for write_outputs)
     with Console(stderr=True).status(f"{dataset.name}: refining the trajectory (end of run)"):
         result.final_trajectory()
-    metrics = write_outputs(result, dataset, settings, out, navigation)
+        refined_navigation = None
+        if navigation is not None and settings.navigation.refine_offline and result.refined is not None and len(result.refined) >= 2:
+            refined_navigation = navigation_on_refined(dataset, settings, result.refined)
+    metrics = write_outputs(result, dataset, settings, out, navigation, refined_navigation)
     if metrics["tracked_frames"] == 0:
         frames = f"{dataset.num_frames} frame" + ("s" if dataset.num_frames != 1 else "")
         raise InitialisationError(
@@ -101,6 +104,8 @@ def echo_navigation(section: dict) -> None:
         line += f"; scale {section['scale']:.4g} m/unit (1 sigma {100 * section['scale_sigma']:.2f} %)"
     if "ate_se3_rmse_m" in section:
         line += f"; ATE (SE3-aligned, no scale, RMSE) {section['ate_se3_rmse_m']:.4f} m, scale error {100 * section['scale_error']:+.2f} %"
+    if "live_ate_se3_rmse_m" in section:
+        line += f" (as answered live: {section['live_ate_se3_rmse_m']:.4f} m)"
     typer.echo(line)
     for warning in section["warnings"]:
         typer.echo(f"warning: navigation: {warning}", err=True)

@@ -34,6 +34,9 @@ def associate(ref: Trajectory, est: Trajectory, max_diff: float = 0.01, offset: 
     """
     if ref.timestamps is None or est.timestamps is None:
         raise EvaluationError("both trajectories need timestamps to be associated")
+    for name, trajectory in (("reference", ref), ("estimate", est)):
+        if len(trajectory) == 0:
+            raise EvaluationError(f"the {name} trajectory has no poses")
     est_stamps = est.timestamps + offset
     if len(est) > len(ref):
         ref_idx, est_idx = nearest_matches(ref.timestamps, est_stamps, max_diff)

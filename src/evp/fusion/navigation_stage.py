@@ -49,16 +49,27 @@ from evp.fusion.visual_inertial_init import InertialAlignment, initialise_visual
 from evp.fusion.wheel_init import initialise_from_wheels
 from evp.types import BaroSample, Frame, GpsFix, ImuSample, PoseEstimate, RangeSample, TrackingState, WheelOdometry
 
+# Keyframe spacings the visual-inertial alignment tries, as multiples of
+# navigation.vi_init_keyframe_interval_s: a fast vehicle is solved at once at the configured
+# spacing; a slow one (a walker) whose visual noise swamps 0.25 s of motion is solved over a 2x or
+# 4x longer window (the rendered circle: at 0.25 s the scale was never determined, every 2nd
+# keyframe of 20 gave it within 5-8 %). Longer windows also drift more in the visual map: 4x is
+# where that stays below the noise.
+VI_INIT_STRIDES = (1, 2, 4)
+
 # 1-sigma uncertainties of the filter's start from a visual-inertial alignment. The world is the
 # map's frame levelled, so the position, the map's origin and the heading are known at the start
 # by definition (small sigmas keep the covariance well conditioned); VINS-Mono's alignment gives
-# gravity to about a degree, velocities to a few cm/s and the scale to a few per cent.
+# gravity to about a degree, velocities to a few cm/s; the scale starts with the uncertainty
+# the alignment is allowed (navigation.vi_init_max_scale_sigma).
 START_POSITION_SIGMA_M = 0.01
 START_VELOCITY_SIGMA_M_S = 0.1
 START_ATTITUDE_SIGMA_RAD = 0.02
-START_LOG_SCALE_SIGMA = 0.1
 START_MAP_ATTITUDE_SIGMA_RAD = 0.02
 START_MAP_POSITION_SIGMA_M = 0.01
+# the alignment's least-squares sigma leaves out what it neglects (accelerometer bias, the
+# camera-IMU time offset): a start is never trusted beyond 1 %
+START_MIN_LOG_SCALE_SIGMA = 0.01
 
 
 @dataclass(frozen=True)
@@ -276,38 +287,47 @@ class NavigationStage:
         self.filter.reset_visual_map(estimate.timestamp, keep_scale)
 
     def _collect(self, estimate: PoseEstimate) -> None:
-        """Keep the pose as a keyframe when it is far enough after the last, and try to initialise."""
-        if self._keyframes and estimate.timestamp - self._keyframes[-1][0] < self.settings.vi_init_keyframe_interval_s:
+        """Keep the pose as a keyframe when it is far enough after the last, and try to initialise:
+        over the newest window of keyframes, then over windows of every 2nd and 4th one
+        (:data:`VI_INIT_STRIDES`), from the IMU, else from the wheels."""
+        s = self.settings
+        if self._keyframes and estimate.timestamp - self._keyframes[-1][0] < s.vi_init_keyframe_interval_s:
             return
         self._keyframes.append((estimate.timestamp, estimate.T_world_cam))
-        del self._keyframes[: -self.settings.vi_init_window_keyframes]
+        del self._keyframes[: -s.vi_init_window_keyframes * VI_INIT_STRIDES[-1]]
         oldest = self._keyframes[0][0]
-        keep = next((i for i, s in enumerate(self._imu) if s.timestamp >= oldest), len(self._imu))
+        keep = next((i for i, sample in enumerate(self._imu) if sample.timestamp >= oldest), len(self._imu))
         del self._imu[: max(0, keep - 1)]  # one sample at or before the oldest keyframe stays
         keep = next((i for i, w in enumerate(self._wheel) if w.timestamp >= oldest), len(self._wheel))
         del self._wheel[: max(0, keep - 1)]  # likewise one wheel record
-        alignment = initialise_visual_inertial(self._keyframes, self._imu, self.T_body_cam, self.settings)
-        if not alignment.observable and self._wheel:
-            wheels = initialise_from_wheels(self._keyframes, self._wheel, self._imu, self.T_body_cam, self.settings)
+        reasons = []
+        for stride in VI_INIT_STRIDES:
+            window = self._keyframes[::-stride][: s.vi_init_window_keyframes][::-1]
+            if stride > 1 and len(window) < s.vi_init_min_keyframes:
+                break
+            alignment = initialise_visual_inertial(window, self._imu, self.T_body_cam, s)
+            if alignment.observable:
+                contradiction = self._baro_contradiction(alignment, window)
+                if contradiction is None:
+                    self._start(alignment, "visual-inertial")
+                    return
+                alignment = replace(alignment, observable=False, reason=contradiction)
+            reasons.append(alignment.reason if stride == 1 else f"every {stride}th keyframe: {alignment.reason}")
+        newest = self._keyframes[-s.vi_init_window_keyframes :]
+        if self._wheel:
+            wheels = initialise_from_wheels(newest, self._wheel, self._imu, self.T_body_cam, s)
             if wheels.observable:
                 self._start(wheels, "wheel odometry")
                 return
-            alignment = replace(alignment, reason=f"{alignment.reason}; wheels: {wheels.reason}")
-        if not alignment.observable:
-            self.status = f"scale not yet observable: {alignment.reason}"
-            return
-        contradiction = self._baro_contradiction(alignment)
-        if contradiction is not None:
-            self.status = f"scale not yet observable: {contradiction}"
-            return
-        self._start(alignment, "visual-inertial")
+            reasons.append(f"wheels: {wheels.reason}")
+        self.status = f"scale not yet observable: {'; '.join(reasons)}"
 
-    def _baro_contradiction(self, alignment: InertialAlignment) -> str | None:
+    def _baro_contradiction(self, alignment: InertialAlignment, window: list[tuple[float, np.ndarray]]) -> str | None:
         """Why the barometer's climb over the keyframe window contradicts the alignment's scale;
         None when it agrees within ``vi_init_baro_scale_tolerance`` or the climb is too small to
         tell. A downward camera climbing straight up moves along its optical axis: the alignment
         can then find a consistent but wrong scale (5.8x off on the rendered drone flight's climb)."""
-        (t0, T0), (t1, T1) = self._keyframes[0], self._keyframes[-1]
+        (t0, T0), (t1, T1) = window[0], window[-1]
         del self._baro[: next((i for i, (t, _) in enumerate(self._baro) if t >= t0 - self.settings.vi_init_keyframe_interval_s), len(self._baro))]
 
         def height(t: float) -> float:
@@ -325,7 +345,8 @@ class NavigationStage:
     def _start(self, alignment: InertialAlignment, source: str) -> None:
         t, T_map_cam = self._keyframes[-1]
         state = alignment.nav_state(t, T_map_cam, self.T_body_cam, alignment.velocities_map[-1])
-        self.filter = NavigationFilter(state, self.settings, self._start_covariance())
+        camera_position = state.position + state.R_world_body @ self.T_body_cam[:3, 3]
+        self.filter = NavigationFilter(state, self.settings, self._start_covariance(camera_position, alignment.scale_sigma))
         self.alignment, self.initialised_at = alignment, t
         self.status = f"initialised at {t:.3f} s from {source}: scale {alignment.scale:.4g} m per map unit"
         start = next((i for i in range(len(self._imu) - 1, -1, -1) if self._imu[i].timestamp <= t), 0)
@@ -338,16 +359,29 @@ class NavigationStage:
             self._observe_wheels(record)
         self._imu, self._keyframes, self._wheel, self._baro = [], [], [], []
 
-    def _start_covariance(self) -> np.ndarray:
-        """The prior (settings) with what the alignment determined narrowed to the START_ sigmas."""
+    def _start_covariance(self, camera_position: np.ndarray, scale_sigma: float) -> np.ndarray:
+        """The prior (settings) with what the alignment determined narrowed to the START_ sigmas.
+        The world's origin is the map's, so the camera's position is the scale times its map
+        position: its uncertainty along that direction is the scale's, fully correlated with it.
+        Given as independent, a 1 cm position and origin would pin the scale to 1 cm over the
+        distance from the map origin (1 % at 1 m) whatever the alignment's doubt: the rendered
+        circle kept its start's -11 % scale to the end with a 1.2 % sigma. The scale's own sigma is
+        the alignment's (``scale_sigma``, NaN for a start that gives none: the largest allowed),
+        at least START_MIN_LOG_SCALE_SIGMA."""
         variances = np.diag(initial_covariance(self.settings)).copy()
+        largest = self.settings.vi_init_max_scale_sigma
+        scale_sigma = largest if not math.isfinite(scale_sigma) else min(max(scale_sigma, START_MIN_LOG_SCALE_SIGMA), largest)
         for states, sigma in (
             (POSITION, START_POSITION_SIGMA_M),
             (VELOCITY, START_VELOCITY_SIGMA_M_S),
             (ATTITUDE, START_ATTITUDE_SIGMA_RAD),
-            (LOG_SCALE, START_LOG_SCALE_SIGMA),
+            (LOG_SCALE, scale_sigma),
             (MAP_ATTITUDE, START_MAP_ATTITUDE_SIGMA_RAD),
             (MAP_POSITION, START_MAP_POSITION_SIGMA_M),
         ):
             variances[states] = sigma**2
-        return np.diag(variances)
+        P = np.diag(variances)
+        # d(position)/d(log scale) = the camera's offset from the map origin, metric, world axes
+        P[POSITION, POSITION] += np.outer(camera_position, camera_position) * scale_sigma**2
+        P[POSITION, LOG_SCALE] = P[LOG_SCALE, POSITION] = camera_position * scale_sigma**2
+        return P

@@ -39,6 +39,7 @@ class InertialAlignment:
     velocities_map: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     gyro_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
     acceleration_std_m_s2: float = float("nan")  # the excitation that was measured
+    scale_sigma: float = float("nan")  # the scale's 1-sigma, as a share of it
 
     @property
     def R_world_map(self) -> np.ndarray:
@@ -184,4 +185,27 @@ def initialise_visual_inertial(
         solution = x
         scale = x[3 * n + 2]
     gravity = gravity / np.linalg.norm(gravity) * s.gravity_m_s2
-    return InertialAlignment(True, "", float(scale), gravity, solution[: 3 * n].reshape(n, 3), gyro_bias, excitation)
+    relative_sigma = _scale_sigma(A_t, b - A[:, 3 * n : 3 * n + 3] @ gravity, solution) / scale
+    if not relative_sigma <= s.vi_init_max_scale_sigma:
+        return InertialAlignment(
+            False,
+            f"scale not yet determined: {scale:.3g} +- {100 * relative_sigma:.0f} % (> {100 * s.vi_init_max_scale_sigma:.0f} %): too little motion in the map for the IMU's",
+            acceleration_std_m_s2=excitation,
+        )
+    return InertialAlignment(True, "", float(scale), gravity, solution[: 3 * n].reshape(n, 3), gyro_bias, excitation, float(relative_sigma))
+
+
+def _scale_sigma(A: np.ndarray, b: np.ndarray, x: np.ndarray) -> float:
+    """1-sigma of the last unknown (the scale) of the least-squares solution ``x`` of ``A x = b``,
+    the rows' noise taken from the residual (unweighted: positions and velocities share one
+    variance, enough to tell a scale the motion fixes from one it does not)."""
+    dof = A.shape[0] - A.shape[1]
+    if dof <= 0:
+        return float("inf")
+    residual = A @ x - b
+    variance = float(residual @ residual) / dof
+    try:
+        covariance = variance * np.linalg.inv(A.T @ A)
+    except np.linalg.LinAlgError:
+        return float("inf")
+    return float(np.sqrt(max(covariance[-1, -1], 0.0)))

@@ -115,3 +115,18 @@ def navigation_metrics(stage: NavigationStage, result: RunResult, dataset: Datas
     section["scale_error_max_abs"] = float(np.max(np.abs(errors)))
     write_report(se3, out / "plots" / "navigation", "ground truth", "trajectory.tum (SE3-aligned)")
     return section
+
+
+def live_navigation_metrics(result: RunResult, dataset: Dataset, settings: Settings) -> dict:
+    """The SE3 ATE of the fused poses as answered live (``live_ate_se3_rmse_m``), beside a
+    section computed on the refined pass; empty without ground truth."""
+    live = result.metric_trajectory()
+    if dataset.ground_truth is None or len(live) < 3:
+        return {}
+    from evp.eval.evaluate import evaluate
+
+    try:
+        se3 = evaluate(dataset.ground_truth, live, settings.eval.model_copy(update={"align": "se3"}))
+    except EvaluationError as exc:
+        return {"live_evaluation_error": str(exc)}
+    return {"live_ate_se3_rmse_m": se3.summary()["rmse"], "live_metric_frames": len(live)}

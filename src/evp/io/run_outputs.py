@@ -11,7 +11,7 @@ from evp.config import Settings, write_settings
 from evp.errors import EvaluationError
 from evp.fusion.navigation_stage import NavigationStage
 from evp.io.dataset import Dataset
-from evp.io.navigation_outputs import navigation_metrics, write_navigation_csv
+from evp.io.navigation_outputs import live_navigation_metrics, navigation_metrics, write_navigation_csv
 from evp.io.trajectory import write_trajectory
 from evp.pipeline import RunResult
 from evp.types import Trajectory
@@ -43,7 +43,14 @@ def run_timing(result: RunResult) -> dict:
     return timing
 
 
-def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: Path, navigation: NavigationStage | None = None) -> dict:
+def write_outputs(
+    result: RunResult,
+    dataset: Dataset,
+    settings: Settings,
+    out: Path,
+    navigation: NavigationStage | None = None,
+    refined_navigation: tuple[RunResult, NavigationStage] | None = None,
+) -> dict:
     """trajectory.tum, states.csv, timing.json, metrics.json (+ plots) when ground truth exists,
     settings.yaml; trajectory_live.tum (the poses as answered live) when the estimator's trajectory
     is a refined one; camera_estimated.yaml (usable as camera.calibration_file) when the
@@ -54,17 +61,24 @@ def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: 
     trajectory_visual.tum, navigation.csv follows the filter, and metrics.json gains a
     ``navigation`` section, ``ate_se3_rmse`` and, once georeferenced, ``horizontal_error_none_mean``
     (no alignment; :func:`navigation_metrics`); the top-level ATE
-    figures stay the estimator's trajectory's, as without the stage."""
+    figures stay the estimator's trajectory's, as without the stage. With ``refined_navigation``
+    (the stage run again on the refined trajectory: :func:`evp.run_setup.navigation_on_refined`)
+    that pass gives trajectory.tum, navigation.csv and the section, trajectory_live.tum holds the
+    fused poses as answered live and the section their SE3 ATE as ``live_ate_se3_rmse_m``."""
     estimator = result.estimator
     out.mkdir(parents=True, exist_ok=True)
     write_settings(settings, out)
     trajectory = result.final_trajectory()
-    metric = result.metric_trajectory() if navigation is not None else None
+    fused_result, fused_stage = refined_navigation or (result, navigation)
+    metric = fused_result.metric_trajectory() if fused_stage is not None else None
     if metric is not None:
         write_trajectory(out / "trajectory_visual.tum", trajectory)
-        write_navigation_csv(navigation, out / "navigation.csv")
+        write_navigation_csv(fused_stage, out / "navigation.csv")
     write_trajectory(out / "trajectory.tum", metric if metric else trajectory)
-    if result.refined is not None:
+    live_fused = result.metric_trajectory() if refined_navigation is not None else None
+    if live_fused:
+        write_trajectory(out / "trajectory_live.tum", live_fused)
+    elif result.refined is not None:
         write_trajectory(out / "trajectory_live.tum", result.trajectory())
     if estimator.lens is not None:
         from evp.calib.camera_files import write_opencv_yaml
@@ -106,8 +120,10 @@ def write_outputs(result: RunResult, dataset: Dataset, settings: Settings, out: 
         else:
             metrics.update(evaluation.summary())
             write_report(evaluation, out / "plots", "ground truth", "trajectory.tum")
-    if navigation is not None:
-        metrics["navigation"] = navigation_metrics(navigation, result, dataset, settings, out)
+    if fused_stage is not None:
+        metrics["navigation"] = navigation_metrics(fused_stage, fused_result, dataset, settings, out)
+        if live_fused:
+            metrics["navigation"].update(live_navigation_metrics(result, dataset, settings))
         if "ate_se3_rmse_m" in metrics["navigation"]:
             metrics["ate_se3_rmse"] = metrics["navigation"]["ate_se3_rmse_m"]
         if "horizontal_error_mean_m" in metrics["navigation"]:

@@ -137,6 +137,7 @@ class SlamSystem(Estimator):
         self._reference_kf: int | None = None
         self._frame_count = 0
         self._last_kf_frame = 0
+        self._last_kf_time = -np.inf
         self._last_reloc_frame = -(10**9)
         self._last_inliers = 0
         self._feature_budget = STARVED_FEATURE_BUDGET
@@ -330,6 +331,7 @@ class SlamSystem(Estimator):
         self._init_reference = None
         self._reference_kf = kf1.id
         self._last_kf_frame = self._frame_count
+        self._last_kf_time = frame.timestamp
         self._velocity = None
         self._last = _TrackedFrame(frame.timestamp, features, kf1.T_cw.copy(), kf1.point_ids.copy())
         self._last_inliers = int((kf1.point_ids >= 0).sum())
@@ -399,7 +401,7 @@ class SlamSystem(Estimator):
         self._last_inliers = inliers
         self._budget_features(inliers, len(features))
         self._last = _TrackedFrame(timestamp, features, T_cw, matched.copy())
-        if self._need_keyframe(inliers):
+        if self._need_keyframe(inliers, timestamp):
             self._insert_keyframe(timestamp, features, T_cw, matched)
         return T_cw
 
@@ -575,7 +577,7 @@ class SlamSystem(Estimator):
 
     # --- keyframes --------------------------------------------------------------------------
 
-    def _need_keyframe(self, inliers: int) -> bool:
+    def _need_keyframe(self, inliers: int, timestamp: float) -> bool:
         s = self.settings
         n_kfs = len(self.map.keyframes)
         since_kf = self._frame_count - self._last_kf_frame
@@ -588,13 +590,14 @@ class SlamSystem(Estimator):
             for point_id in reference.point_ids[reference.point_ids >= 0]:
                 point = self.map.points.get(int(point_id))
                 ref_matches += point is not None and len(point.observations) >= min_obs
-        idle = self.mapping.idle
+        mapper_free = self.mapping.idle
+        idle = mapper_free and timestamp - self._last_kf_time >= s.keyframe_min_interval_s
         weak = inliers < 0.5 * ref_matches  # the map is slipping away (fast forward motion)
         c1 = since_kf >= s.keyframe_max_frames or idle or weak
         c2 = inliers < s.keyframe_ref_ratio * ref_matches and inliers > 15
         if not (c1 and c2):
             return False
-        if not idle:
+        if not mapper_free:
             self.mapping.interrupt()  # ORB-SLAM's InterruptBA: the mapper comes free for a next frame
         # a busy mapper still takes a keyframe when tracking is weak, one at a time
         return idle or (weak and self.mapping.pending == 0)
@@ -603,6 +606,7 @@ class SlamSystem(Estimator):
         kf = self.map.add_keyframe(timestamp, T_cw, features, self._bow(features))
         self._reference_kf = kf.id
         self._last_kf_frame = self._frame_count
+        self._last_kf_time = timestamp
         self.mapping.submit(NewKeyFrame(kf, matched.copy()))
 
     # --- relocalisation ---------------------------------------------------------------------

@@ -291,6 +291,24 @@ class StationSettings(_Section):
     )
 
 
+class WifiSettings(_Section):
+    """WiFi RSS fingerprinting (``evp wifi``, :mod:`evp.wifi`)."""
+
+    not_detected_dbm: float = Field(
+        -105.0,
+        lt=-90.0,
+        description="RSS an access point not heard counts as: below the weakest reading (UJI long-term data: -98 dBm; its authors' baselines use -105)",
+    )
+    place_tolerance_m: float = Field(
+        0.05, gt=0, description="survey samples this close (each axis, same floor) are one surveyed place (UJI's survey marks are >= 0.6 m apart)"
+    )
+    k_candidates: list[int] = Field(
+        default_factory=lambda: [1, 3, 5, 7, 9, 11, 15, 20, 25, 30],
+        min_length=1,
+        description="wknn_cv: the k values leave-one-place-out cross-validation inside the radio map chooses from",
+    )
+
+
 class Settings(_Section):
     estimator: Literal["auto", "slam", "klt-vo", "nadir"] = Field(
         "auto",
@@ -306,6 +324,7 @@ class Settings(_Section):
     eval: EvalSettings = EvalSettings()
     station: StationSettings = StationSettings()
     mavlink: MavlinkSettings = MavlinkSettings()
+    wifi: WifiSettings = WifiSettings()
 
 
 # ORB-SLAM2/3 settings keys and where they go in EVP's settings.

@@ -194,25 +194,25 @@ class EkfSlamFilter:
         R_cw = self.R_body_cam.T @ Rz.T
         centre = np.array([self.x[X], self.x[Y], 0.0]) + Rz @ self.x[OFFSET]
         lever = Rz @ self.x[OFFSET]
+        inverse = np.array([f.inverse_depth for f in features], dtype=bool)
+        starts = np.array([f.start for f in features], dtype=int)
+        columns = np.empty((m, 12), dtype=int)
+        columns[:, :6] = POSE_AND_OFFSET
+        columns[:, 6:] = starts[:, None] + np.arange(6)
+        columns[~inverse, 9:] = starts[~inverse, None]  # a Euclidean feature's padding: zero derivative
         h_world = np.zeros((m, 3))
         d_feature = np.zeros((m, 3, 6))  # d h_world / d feature states
         rho = np.ones(m)
-        columns = np.zeros((m, 12), dtype=int)
-        for i, f in enumerate(features):
-            v = self.x[f.start : f.start + f.size]
-            columns[i, :6] = POSE_AND_OFFSET
-            if f.inverse_depth:
-                rho[i] = v[5]
-                m_dir = ray_direction(v[3], v[4])
-                da, de = ray_direction_derivatives(v[3], v[4])
-                h_world[i] = v[5] * (v[:3] - centre) + m_dir
-                d_feature[i] = np.column_stack([v[5] * np.eye(3), da, de, v[:3] - centre])
-                columns[i, 6:] = np.arange(f.start, f.start + 6)
-            else:
-                h_world[i] = v - centre
-                d_feature[i, :, :3] = np.eye(3)
-                columns[i, 6:] = f.start  # padding: zero derivative
-                columns[i, 6:9] = np.arange(f.start, f.start + 3)
+        if inverse.any():
+            v = self.x[columns[inverse, 6:]]
+            rho[inverse] = v[:, 5]
+            da, de = ray_direction_derivatives(v[:, 3], v[:, 4])
+            anchor_offset = v[:, :3] - centre
+            h_world[inverse] = v[:, 5:6] * anchor_offset + ray_direction(v[:, 3], v[:, 4])
+            d_feature[inverse] = np.concatenate([v[:, 5, None, None] * np.eye(3), da[:, :, None], de[:, :, None], anchor_offset[:, :, None]], axis=2)
+        if (~inverse).any():
+            h_world[~inverse] = self.x[columns[~inverse, 6:9]] - centre
+            d_feature[~inverse, :, :3] = np.eye(3)
         h = h_world @ R_cw.T
         in_front = h[:, 2] > 1e-6
         depth = np.where(in_front, h[:, 2], 1.0)
@@ -322,14 +322,18 @@ class EkfSlamFilter:
         """Inverse-depth features whose linearity index is below ``euclidean_linearity`` become
         Euclidean points (3 states instead of 6); returns how many did."""
         _, centre = self.camera_pose()
+        candidates = [f for f in self.features if f.inverse_depth]
+        if not candidates:
+            return 0
+        starts = np.array([f.start for f in candidates])
+        v = self.x[starts[:, None] + np.arange(6)]
+        rho_sigma = np.sqrt(np.maximum(self.P[starts + 5, starts + 5], 0.0))
+        index = linearity_index(v, rho_sigma, centre)
         converted = 0
-        for f in list(self.features):
-            if not f.inverse_depth:
+        for f, keep in zip(candidates, (v[:, 5] <= 0) | (index >= self.settings.euclidean_linearity)):
+            if keep:
                 continue
             v = self.x[f.start : f.start + 6]
-            rho_sigma = math.sqrt(max(self.P[f.start + 5, f.start + 5], 0.0))
-            if v[5] <= 0 or linearity_index(v, rho_sigma, centre) >= self.settings.euclidean_linearity:
-                continue
             point, J = euclidean(v)
             block = slice(f.start, f.start + 6)
             rows = J @ self.P[block, :]

@@ -50,14 +50,14 @@ def euclidean(feature: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return anchor + m / rho, jacobian
 
 
-def linearity_index(feature: np.ndarray, rho_sigma: float, camera_position: np.ndarray) -> float:
-    """Civera et al.'s linearity index of the point's depth as seen from ``camera_position``:
-    ``4 sigma_d / d1 |cos alpha|`` with ``sigma_d = sigma_rho / rho^2`` its depth's uncertainty,
-    ``d1`` its distance from the camera and ``alpha`` the angle between that line and the first
-    ray. Below ~0.1 the Euclidean form is as linear as the inverse-depth one (their Fig. 5)."""
-    anchor, m, rho = feature[:3], ray_direction(feature[3], feature[4]), feature[5]
-    point = anchor + m / rho
-    sight = point - camera_position
-    distance = float(np.linalg.norm(sight))
-    cos_alpha = float(m @ sight) / max(distance, 1e-12)
-    return 4.0 * rho_sigma / rho**2 / max(distance, 1e-12) * abs(cos_alpha)
+def linearity_index(features: np.ndarray, rho_sigma: np.ndarray, camera_position: np.ndarray) -> np.ndarray:
+    """Civera et al.'s linearity index of inverse-depth features (N, 6) seen from
+    ``camera_position``: ``4 sigma_d / d1 |cos alpha|`` with ``sigma_d = sigma_rho / rho^2`` the
+    depth's uncertainty, ``d1`` the point's distance from the camera and ``alpha`` the angle
+    between that line and the first ray. Below ~0.1 the Euclidean form is as linear as the
+    inverse-depth one (their Fig. 5)."""
+    anchor, m, rho = features[:, :3], ray_direction(features[:, 3], features[:, 4]), features[:, 5]
+    sight = anchor + m / rho[:, None] - camera_position
+    distance = np.maximum(np.linalg.norm(sight, axis=1), 1e-12)
+    cos_alpha = np.einsum("na,na->n", m, sight) / distance
+    return 4.0 * rho_sigma / rho**2 / distance * np.abs(cos_alpha)

@@ -317,6 +317,11 @@ class EkfSlamSettings(_Section):
         description="forward speed noise per wheel sample (1 sigma): one encoder tick per 20 ms sample is 0.03 m/s on the simulated robot, plus slip",
     )
     wheel_speed_sigma_fraction: float = Field(0.01, ge=0, description="speed noise proportional to the speed (wheel radius, slip)")
+    lateral_slip_m_per_sqrt_s: float = Field(
+        0.02,
+        ge=0,
+        description="sideways slip the unicycle model misses, as a random walk (the rendered robot slides up to 1.6 cm/s in its turns, ~3 cm per turn)",
+    )
     gyro_sigma_rad_s: float = Field(0.005, gt=0, description="yaw rate noise per sample (1 sigma)")
     initial_gyro_bias_sigma_rad_s: float = Field(0.01, gt=0, description="gyro bias prior: a phone gyro's turn-on bias (BMI160: 0.5 deg/s)")
     gyro_bias_walk_rad_s_per_sqrt_s: float = Field(1e-4, ge=0, description="gyro bias random walk")
@@ -336,6 +341,12 @@ class EkfSlamSettings(_Section):
     new_feature_min_distance_px: float = Field(20.0, gt=0, description="a new feature keeps this far from the features predicted in the image")
     image_margin_px: float = Field(16.0, ge=0, description="features predicted this close to the border are not searched (the ORB patch needs room)")
     search_gate_probability: float = Field(0.99, gt=0.5, lt=1, description="a feature is searched inside this share of its predicted measurement's Gaussian")
+    low_innovation_probability: float = Field(
+        0.9,
+        gt=0,
+        lt=1,
+        description="matches whose innovation is inside this share of the prediction's Gaussian are fused first, the rest re-tested on the corrected state (Civera et al. 2010's low/high-innovation split)",
+    )
     delete_min_attempts: int = Field(10, ge=1, description="a feature searched this many times ...")
     delete_max_miss_ratio: float = Field(0.5, gt=0, lt=1, description="... and missed more than this share of them is deleted (MonoSLAM's rule)")
     consistency_window_frames: int = Field(30, ge=1, description="the innovations of this many updates are tested together")

@@ -180,6 +180,8 @@ class EkfSlamFilter:
         # (sigma^2 x sample period / dt is not known here, so each interval counts as one sample)
         Q = G @ np.diag([speed_sigma**2, (s.gyro_sigma_rad_s * factor) ** 2]) @ G.T
         Q[BIAS, BIAS] += s.gyro_bias_walk_rad_s_per_sqrt_s**2 * dt
+        across = np.array([-math.sin(self.x[YAW]), math.cos(self.x[YAW])])  # sideways slip: the wheels do not see it
+        Q[:2, :2] += s.lateral_slip_m_per_sqrt_s**2 * dt * np.outer(across, across)
         block = slice(0, 4)
         self.P[block, :] = F @ self.P[block, :]
         self.P[:, block] = self.P[:, block] @ F.T
@@ -312,6 +314,20 @@ class EkfSlamFilter:
         grown[n:, :n] = cross
         grown[:n, n:] = cross.T
         grown[n:, n:] = new_block
+        self.P = grown
+        feature = MapFeature(self._next_id, n, INVERSE_DEPTH_SIZE, descriptor, descriptor, last_seen=timestamp)
+        self._next_id += 1
+        self.features.append(feature)
+        return feature
+
+    def add_feature_state(self, values: np.ndarray, covariance: np.ndarray, descriptor: np.ndarray, timestamp: float) -> MapFeature:
+        """A feature given as its inverse-depth states (6,) and their covariance, independent of
+        the rest (seed 001's experiment: features surveyed by hand, or guessed, at the start)."""
+        n = len(self.x)
+        self.x = np.concatenate([self.x, values])
+        grown = np.zeros((n + 6, n + 6))
+        grown[:n, :n] = self.P
+        grown[n:, n:] = covariance
         self.P = grown
         feature = MapFeature(self._next_id, n, INVERSE_DEPTH_SIZE, descriptor, descriptor, last_seen=timestamp)
         self._next_id += 1

@@ -38,13 +38,15 @@ def run_known_features(
     point_count: int,
     max_features: int,
     on_new_feature: Callable[[EkfSlamFilter, int, int], None] = lambda flt, feature_id, point: None,
+    given: dict[int, int] | None = None,
 ) -> KnownFeatureRun:
     """Wheel samples ``(times, speeds, yaw_rates)`` through ``flt``; every ``frame_every``-th
     sample is a frame, where ``observe(sample index)`` gives the normalised coordinates of the
     points in view by point index. Points in the state are fused; points in view not yet in it are
-    added (up to ``max_features``), ``on_new_feature`` told of each (e.g. to start it wrong)."""
-    feature_of: dict[int, int] = {}
-    point_of: dict[int, int] = {}
+    added (up to ``max_features``), ``on_new_feature`` told of each (e.g. to start it wrong).
+    ``given``: features already in the filter, point index -> feature id."""
+    feature_of: dict[int, int] = dict(given or {})
+    point_of: dict[int, int] = {f: p for p, f in feature_of.items()}
     poses = np.zeros((len(times), 3))
     sigma = np.zeros(len(times))
     frame_times, points = [], []

@@ -17,7 +17,8 @@ def experiment(
     out: Path | None = typer.Option(None, "--out", help="Folder for report.md and its plots."),
 ) -> None:
     """Run one of the papers' studies (evp experiment list names them)."""
-    from evp.experiments import EXPERIMENTS, experiment as find
+    from evp.experiments import EXPERIMENTS
+    from evp.experiments import experiment as find
 
     if name == "list":
         for item in EXPERIMENTS.values():

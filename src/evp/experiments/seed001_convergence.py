@@ -78,7 +78,9 @@ def run_case(name: str, robot_off: bool, features_off: bool) -> CaseResult:
     for index, point in enumerate(scene.points):
         values, covariance = _feature_guess(point, anchor, features_off)
         given[index] = flt.add_feature_state(values, covariance, NO_DESCRIPTOR, 0.0).id
-    run = run_known_features(flt, scene.times, scene.speeds, scene.yaw_rates + GYRO_BIAS_RAD_S, 5, scene.bearings, len(scene.points), len(scene.points), given=given)
+    run = run_known_features(
+        flt, scene.times, scene.speeds, scene.yaw_rates + GYRO_BIAS_RAD_S, 5, scene.bearings, len(scene.points), len(scene.points), given=given
+    )
     position_error = np.linalg.norm(run.poses[:, :2] - scene.poses[:, :2], axis=1)
     heading_error = np.abs(np.angle(np.exp(1j * (run.poses[:, 2] - scene.poses[:, 2]))))
     feature_error = np.nanmean(np.linalg.norm(run.feature_points - scene.points[None], axis=2), axis=1)

@@ -294,8 +294,7 @@ class EkfSlamFilter:
         R_wc, centre = self.camera_pose()
         direction = R_wc @ np.array([z[0], z[1], 1.0])
         azimuth, elevation, d_angles = ray_angles(direction)
-        n = len(self.x)
-        J_state = np.zeros((6, n))  # d feature / d state
+        J_state = np.zeros((6, len(self.x)))  # d feature / d state
         J_state[0:3, X] = [1.0, 0.0, 0.0]
         J_state[0:3, Y] = [0.0, 1.0, 0.0]
         J_state[0:3, YAW] = E_Z @ Rz @ self.x[OFFSET]
@@ -308,25 +307,23 @@ class EkfSlamFilter:
         used = POSE_AND_OFFSET  # the only states the new feature depends on
         cross = J_state[:, used] @ self.P[used, :]
         new_block = cross[:, used] @ J_state[:, used].T + J_noise @ noise @ J_noise.T
-        self.x = np.concatenate([self.x, [*centre, azimuth, elevation, s.initial_inverse_depth]])
-        grown = np.empty((n + 6, n + 6))
-        grown[:n, :n] = self.P
-        grown[n:, :n] = cross
-        grown[:n, n:] = cross.T
-        grown[n:, n:] = new_block
-        self.P = grown
-        feature = MapFeature(self._next_id, n, INVERSE_DEPTH_SIZE, descriptor, descriptor, last_seen=timestamp)
-        self._next_id += 1
-        self.features.append(feature)
-        return feature
+        values = np.array([*centre, azimuth, elevation, s.initial_inverse_depth])
+        return self._append(values, cross, new_block, descriptor, timestamp)
 
     def add_feature_state(self, values: np.ndarray, covariance: np.ndarray, descriptor: np.ndarray, timestamp: float) -> MapFeature:
         """A feature given as its inverse-depth states (6,) and their covariance, independent of
         the rest (seed 001's experiment: features surveyed by hand, or guessed, at the start)."""
+        return self._append(values, np.zeros((6, len(self.x))), covariance, descriptor, timestamp)
+
+    def _append(self, values: np.ndarray, cross: np.ndarray, covariance: np.ndarray, descriptor: np.ndarray, timestamp: float) -> MapFeature:
+        """An inverse-depth feature at the end of the state: its values, its covariance with the
+        state before it (6, n) and its own (6, 6)."""
         n = len(self.x)
         self.x = np.concatenate([self.x, values])
-        grown = np.zeros((n + 6, n + 6))
+        grown = np.empty((n + 6, n + 6))
         grown[:n, :n] = self.P
+        grown[n:, :n] = cross
+        grown[:n, n:] = cross.T
         grown[n:, n:] = covariance
         self.P = grown
         feature = MapFeature(self._next_id, n, INVERSE_DEPTH_SIZE, descriptor, descriptor, last_seen=timestamp)

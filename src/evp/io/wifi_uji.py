@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import json
 import re
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from evp.errors import DataFormatError, DatasetError, UnknownFormatError
+from evp.errors import DatasetError, UnknownFormatError
+from evp.io.npz_archives import read_archive
 from evp.io.text_tables import read_table
 from evp.wifi.fingerprints import Fingerprints
 
@@ -89,12 +89,5 @@ def save_radio_map(survey: Fingerprints, path: Path) -> None:
 
 
 def load_radio_map(path: Path) -> Fingerprints:
-    try:
-        with np.load(Path(path), allow_pickle=False) as archive:
-            data = {name: archive[name] for name in archive.files}
-        meta = json.loads(str(data["meta"]))
-    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as exc:
-        raise DataFormatError(path, f"not an EVP WiFi radio map ({exc})") from exc
-    if meta.get("format") != RADIO_MAP_FORMAT:
-        raise DataFormatError(path, "not an EVP WiFi radio map")
+    data, meta = read_archive(path, RADIO_MAP_FORMAT, "an EVP WiFi radio map")
     return Fingerprints(data["rss"], data["positions"], data["floors"], tuple(meta["access_points"]))

@@ -5,6 +5,7 @@ future work asks for this filter), matched by ORB descriptor; and picking corner
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -19,22 +20,25 @@ ORB_PATCH_BORDER_PX = 16  # OpenCV's ORB drops keypoints whose 31-pixel patch le
 @dataclass(frozen=True)
 class Corners:
     """FAST corners of one image: ``pixels`` (N, 2), ``normalised`` (N, 2) undistorted
-    coordinates, ``responses`` (N,) and the OpenCV keypoints to describe them from."""
+    coordinates and the OpenCV keypoints to describe them from; ``responses`` (N,), the corner
+    scores, are read only when new features are picked."""
 
     pixels: np.ndarray
     normalised: np.ndarray
-    responses: np.ndarray
-    keypoints: list
+    keypoints: tuple
+
+    @cached_property
+    def responses(self) -> np.ndarray:
+        return np.array([k.response for k in self.keypoints], dtype=float)
 
 
 def detect_corners(grey: np.ndarray, camera: CameraModel, threshold: int) -> Corners:
     mask = np.zeros(grey.shape, dtype=np.uint8)
     mask[ORB_PATCH_BORDER_PX:-ORB_PATCH_BORDER_PX, ORB_PATCH_BORDER_PX:-ORB_PATCH_BORDER_PX] = 255
     keypoints = cv2.FastFeatureDetector_create(threshold).detect(grey, mask)
-    pixels = np.array([k.pt for k in keypoints], dtype=float).reshape(-1, 2)
-    responses = np.array([k.response for k in keypoints], dtype=float)
+    pixels = cv2.KeyPoint_convert(keypoints).astype(float).reshape(-1, 2)
     normalised = camera.undistort_points(pixels) if len(pixels) else np.zeros((0, 2))
-    return Corners(pixels, normalised, responses, keypoints)
+    return Corners(pixels, normalised, keypoints)
 
 
 class Describer:

@@ -20,3 +20,13 @@ def test_a_wrong_robot_start_converges_under_3_cm_and_true_states_stay_there():
     assert wrong_start.position_error[-1] < 0.03 and wrong_start.position_error[wrong_start.times > 5.0].max() < 0.03
     true_start = run_case("true", *CASES["true initial states (Fig. 9)"])
     assert true_start.position_error.max() < 0.03
+
+
+def test_the_accelerometer_drifts_far_beyond_the_wheels():
+    """Seed 001's Figure 3 on the simulated robot: double integration ends metres off, the wheels
+    within decimetres."""
+    from evp.experiments.seed001_dead_reckoning import METHODS, _errors, paths_for_seed
+
+    truth, paths = paths_for_seed(1)
+    end = {name: _errors(truth, *paths[name])[-1] for name in METHODS}
+    assert end[METHODS[0]] > 10.0 and end[METHODS[1]] < 0.5 and end[METHODS[2]] < 0.5

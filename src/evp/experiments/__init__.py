@@ -33,6 +33,11 @@ EXPERIMENTS = {
             "Seed 001, Figures 9-12: EKF-SLAM convergence from true, wrong robot, wrong feature and all-wrong initial states",
             "seed001_convergence",
         ),
+        Experiment(
+            "seed001-dead-reckoning",
+            "Seed 001, Figure 3: accelerometer double integration against wheel odometry (with and without the gyro) on the simulated robot",
+            "seed001_dead_reckoning",
+        ),
     )
 }
 

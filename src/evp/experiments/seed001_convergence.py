@@ -30,6 +30,7 @@ from evp.config import EkfSlamSettings  # noqa: E402
 from evp.ekf_slam.filter import EkfSlamFilter, yaw_rotation  # noqa: E402
 from evp.ekf_slam.inverse_depth import ray_angles  # noqa: E402
 from evp.ekf_slam.known_features import NO_DESCRIPTOR, run_known_features  # noqa: E402
+from evp.experiments.series import value_at  # noqa: E402
 from evp.sim.landmark_drive import CAMERA_OFFSET, FORWARD_CAMERA, ring_loop  # noqa: E402
 
 GYRO_BIAS_RAD_S = 0.002  # the rendered robot's (sim WheelConfig.gyro_bias_rad_s)
@@ -106,10 +107,6 @@ def _plot(results: list[CaseResult], out: Path) -> list[str]:
     return names
 
 
-def _at(times: np.ndarray, values: np.ndarray, t: float) -> float:
-    return float(values[min(np.searchsorted(times, t), len(values) - 1)])
-
-
 def run(out: Path, progress: Callable[[str], None] = lambda text: None) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     results = []
@@ -119,7 +116,7 @@ def run(out: Path, progress: Callable[[str], None] = lambda text: None) -> Path:
     plots = _plot(results, out)
     start = {name: 100 * np.hypot(*START_ERROR[:2]) if robot_off else 0.0 for name, (robot_off, _) in CASES.items()}
     rows = [
-        f"| {r.name} | {start[r.name]:.0f} | {100 * r.position_error[0]:.1f} | {100 * _at(r.times, r.position_error, 5.0):.1f} | {100 * _at(r.times, r.position_error, 20.0):.1f} | "
+        f"| {r.name} | {start[r.name]:.0f} | {100 * r.position_error[0]:.1f} | {100 * value_at(r.times, r.position_error, 5.0):.1f} | {100 * value_at(r.times, r.position_error, 20.0):.1f} | "
         f"{100 * r.position_error[-1]:.1f} | {100 * r.feature_error[0]:.1f} | {100 * r.feature_error[-1]:.1f} | {np.degrees(r.heading_error[-1]):.2f} |"
         for r in results
     ]

@@ -24,6 +24,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from evp.experiments.series import value_at  # noqa: E402
 from evp.fusion.nav_state import NavState  # noqa: E402
 from evp.fusion.planar_motion import dead_reckoning  # noqa: E402
 from evp.fusion.strapdown import strapdown_step  # noqa: E402
@@ -78,8 +79,10 @@ def run(out: Path, progress: Callable[[str], None] = lambda text: None) -> Path:
         top.plot(truth[:, 1], truth[:, 2], "--", color="0.4", label="truth")
         for name, (times, xy) in paths.items():
             errors = _errors(truth, times, xy)
-            at = lambda t: float(errors[min(np.searchsorted(times - times[0], t), len(errors) - 1)])  # noqa: E731
-            rows.append(f"| {seed} | {name} | {100 * at(10.0):.1f} | {100 * at(30.0):.1f} | {100 * errors[-1]:.1f} |")
+            elapsed = times - times[0]
+            rows.append(
+                f"| {seed} | {name} | {100 * value_at(elapsed, errors, 10.0):.1f} | {100 * value_at(elapsed, errors, 30.0):.1f} | {100 * errors[-1]:.1f} |"
+            )
             shown = np.linalg.norm(xy - truth[0, 1:], axis=1) < 10.0  # the accelerometer leaves the room: keep the view on it
             top.plot(xy[shown, 0], xy[shown, 1], lw=0.9, label=name)
             over_time.semilogy(times - times[0], np.maximum(errors, 1e-4), lw=0.9, label=name)

@@ -305,10 +305,96 @@ class StationSettings(_Section):
     )
 
 
+class EkfSlamSettings(_Section):
+    """Seed 001's EKF-SLAM (``estimator: ekf-slam``, :mod:`evp.ekf_slam`): a wheeled robot's planar
+    pose, gyro bias, camera position on the robot and inverse-depth features in one EKF."""
+
+    max_features: int = Field(100, ge=5, le=400, description="features in the state at most (the update's cost grows with the square of the state)")
+    min_matched_features: int = Field(
+        15, ge=3, description="fewer features matched in a frame than this: new ones are initialised (MonoSLAM keeps ~12 visible)"
+    )
+    new_features_per_frame: int = Field(5, ge=1, description="features initialised per frame at most")
+    max_updates_per_frame: int = Field(40, ge=3, description="matched features used per update at most (the least uncertain first)")
+    pixel_sigma: float = Field(1.0, gt=0, description="feature position noise in the image (1 sigma, pixels): FAST corners at their pixel")
+    initial_inverse_depth: float = Field(
+        0.5, gt=0, description="inverse depth (1/m) a new feature starts at: 2 m, the middle of a 6 x 5 m room (Civera: 0.1 outdoors)"
+    )
+    initial_inverse_depth_sigma: float = Field(
+        0.5, gt=0, description="its 1 sigma: the 95 % region, 0.5 +- 1, spans 0.67 m to infinity (Civera's rule: include infinity)"
+    )
+    euclidean_linearity: float = Field(
+        0.1, gt=0, description="an inverse-depth feature whose linearity index falls below this becomes a Euclidean point (Civera et al. 2008: 0.1)"
+    )
+    wheel_speed_sigma_m_s: float = Field(
+        0.02,
+        gt=0,
+        description="forward speed noise per wheel sample (1 sigma): one encoder tick per 20 ms sample is 0.03 m/s on the simulated robot, plus slip",
+    )
+    wheel_speed_sigma_fraction: float = Field(0.01, ge=0, description="speed noise proportional to the speed (wheel radius, slip)")
+    lateral_slip_m_per_sqrt_s: float = Field(
+        0.02,
+        ge=0,
+        description="sideways slip the unicycle model misses, as a random walk (the rendered robot slides up to 1.6 cm/s in its turns, ~3 cm per turn)",
+    )
+    gyro_sigma_rad_s: float = Field(0.005, gt=0, description="yaw rate noise per sample (1 sigma)")
+    initial_gyro_bias_sigma_rad_s: float = Field(0.01, gt=0, description="gyro bias prior: a phone gyro's turn-on bias (BMI160: 0.5 deg/s)")
+    gyro_bias_walk_rad_s_per_sqrt_s: float = Field(
+        2e-5,
+        ge=0,
+        description="gyro bias random walk (EuRoC's ADIS16448: 1.9e-5, as navigation.gyro_bias_random_walk); 1e-4 let the bias absorb visual errors (ATE 5.0 against 2.6 cm on the rendered room's seed 3)",
+    )
+    camera_offset_sigma_m: float = Field(0.02, gt=0, description="prior on the camera's position on the robot, per axis (a tape measure's calibration)")
+    max_speed_m_s: float = Field(2.0, gt=0, description="a wheel speed beyond this is an encoder jump or counter wrap, not motion")
+    gyro_saturation_rad_s: float = Field(4.36, gt=0, description="gyro range: a reading at it is saturated (250 deg/s, a phone gyro's smallest range)")
+    bad_input_sigma_factor: float = Field(
+        10.0, ge=1, description="an interval with a bad wheel or gyro reading is predicted from the last good one, its noise times this"
+    )
+    fast_threshold: int = Field(20, ge=1, le=255, description="FAST corner threshold")
+    match_max_hamming: int = Field(
+        50,
+        ge=1,
+        le=256,
+        description="ORB descriptor distance a match may have (ORB-SLAM: 50 strict, 100 loose); 70 let wrong matches in on the rendered room (ATE 3.1-3.6 cm against 2.7-3.0)",
+    )
+    new_feature_min_distance_px: float = Field(20.0, gt=0, description="a new feature keeps this far from the features predicted in the image")
+    image_margin_px: float = Field(16.0, ge=0, description="features predicted this close to the border are not searched (the ORB patch needs room)")
+    search_gate_probability: float = Field(0.99, gt=0.5, lt=1, description="a feature is searched inside this share of its predicted measurement's Gaussian")
+    low_innovation_probability: float = Field(
+        0.9,
+        gt=0,
+        lt=1,
+        description="matches whose innovation is inside this share of the prediction's Gaussian are fused first, the rest re-tested on the corrected state (Civera et al. 2010's low/high-innovation split)",
+    )
+    delete_min_attempts: int = Field(10, ge=1, description="a feature searched this many times ...")
+    delete_max_miss_ratio: float = Field(0.5, gt=0, lt=1, description="... and missed more than this share of them is deleted (MonoSLAM's rule)")
+    consistency_window_frames: int = Field(30, ge=1, description="the innovations of this many updates are tested together")
+    consistency_probability: float = Field(
+        0.999, gt=0.5, lt=1, description="their summed NIS beyond this chi-square quantile: the filter is inconsistent (warning)"
+    )
+
+
+class WifiSettings(_Section):
+    """WiFi RSS fingerprinting (``evp wifi``, :mod:`evp.wifi`)."""
+
+    not_detected_dbm: float = Field(
+        -105.0,
+        lt=-90.0,
+        description="RSS an access point not heard counts as: below the weakest reading (UJI long-term data: -98 dBm; its authors' baselines use -105)",
+    )
+    place_tolerance_m: float = Field(
+        0.05, gt=0, description="survey samples this close (each axis, same floor) are one surveyed place (UJI's survey marks are >= 0.6 m apart)"
+    )
+    k_candidates: list[int] = Field(
+        default_factory=lambda: [1, 3, 5, 7, 9, 11, 15, 20, 25, 30],
+        min_length=1,
+        description="wknn_cv: the k values leave-one-place-out cross-validation inside the radio map chooses from",
+    )
+
+
 class Settings(_Section):
-    estimator: Literal["auto", "slam", "klt-vo", "nadir"] = Field(
+    estimator: Literal["auto", "slam", "klt-vo", "nadir", "ekf-slam"] = Field(
         "auto",
-        description="auto: nadir homography odometry for sparse imagery (frames > 1 s apart, e.g. survey photos), else SLAM; klt-vo is the light VO mode",
+        description="auto: nadir homography odometry for sparse imagery (frames > 1 s apart, e.g. survey photos), else SLAM; klt-vo is the light VO mode; ekf-slam: seed 001's wheel robot (wheels + gyro + camera, metric)",
     )
     orb: OrbSettings = OrbSettings()
     camera: CameraSettings = CameraSettings()
@@ -320,6 +406,8 @@ class Settings(_Section):
     eval: EvalSettings = EvalSettings()
     station: StationSettings = StationSettings()
     mavlink: MavlinkSettings = MavlinkSettings()
+    wifi: WifiSettings = WifiSettings()
+    ekf_slam: EkfSlamSettings = EkfSlamSettings()
 
 
 # ORB-SLAM2/3 settings keys and where they go in EVP's settings.

@@ -26,6 +26,11 @@ class Estimator(ABC):
         """Estimate the camera pose for one frame (frames must arrive in time order); a frame it
         cannot use raises an ``EvpError`` naming why (the pipeline skips it and goes on)."""
 
+    def observe(self, record: Any) -> None:
+        """A telemetry record (IMU, wheels, GPS...), each before the first frame not older than it,
+        in time order. Default: the estimator uses none (stages after it may)."""
+        return None
+
     def settle(self) -> None:
         """Finish the work the last frame started (mapping its keyframe) now, after its answer is
         out; the next :meth:`feed` does it first otherwise. Default: nothing to do."""

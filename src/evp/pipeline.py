@@ -131,7 +131,9 @@ class Pipeline:
         return estimate
 
     def telemetry(self, record: TelemetryRecord) -> None:
-        """One telemetry record (as it arrives live, or in time order from a dataset) to the stages."""
+        """One telemetry record (as it arrives live, or in time order from a dataset) to the
+        estimator (an EKF-SLAM predicts with the wheels) and the stages."""
+        self.estimator.observe(record)
         for stage in self.stages:
             stage.observe(record)
 
@@ -279,13 +281,13 @@ def run_dataset(
     ``realtime_speed`` at its recorded pace times that factor, newest first (``RunResult.dropped``).
     Undecodable or rejected frames are skipped and reported, never fatal. With
     ``reference_orb_features`` OpenCV's ORB is timed on each frame too (``RunResult.reference_orb_ms``).
-    With ``stages`` the dataset's telemetry goes to them too, each record before the frames not
-    older than it (the order of :meth:`Dataset.stream`, a record stamped as a frame first)."""
+    The dataset's telemetry goes to the estimator and the ``stages`` too, each record before the
+    frames not older than it (the order of :meth:`Dataset.stream`, a record stamped as a frame first)."""
     timer = ReferenceOrbTimer(reference_orb_features) if reference_orb_features else None
     extra: list[Sink] = [*sinks, *([timer] if timer else []), *([Progress(progress)] if progress else [])]
     errors: list[EvpError] = []  # frames the reader could not decode, in the order met
     pacing = as_fast_as_possible if realtime_speed is None else RealTime(realtime_speed)
-    result = run_frames(estimator, dataset.frames(errors), extra, pacing, stages, dataset.telemetry() if stages else ())
+    result = run_frames(estimator, dataset.frames(errors), extra, pacing, stages, dataset.telemetry())
     result.skipped += [str(error) for error in errors]
     result.reference_orb_ms = timer.ms if timer is not None else []
     return result

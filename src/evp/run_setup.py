@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from evp.config import Settings
-from evp.errors import CalibrationError
+from evp.errors import CalibrationError, DatasetError, UsageError
 from evp.estimator import Estimator, GivenPoses
 from evp.io.dataset import Dataset
 from evp.types import CameraModel, Frame, Trajectory
@@ -36,6 +36,9 @@ def median_frame_period(dataset: Dataset) -> float:
     return float(np.median(np.diff(dataset.frame_times)))
 
 
+METRIC_ESTIMATORS = ("ekf-slam",)  # metric from their own sensors: scored without a scale alignment unless eval.align says
+
+
 def auto_estimator(dataset: Dataset | None) -> str:
     """What ``estimator: auto`` runs: nadir homography odometry for sparse imagery (frames more
     than 1 s apart, e.g. survey photos), else SLAM (also when no dataset is known, as live)."""
@@ -46,13 +49,17 @@ def auto_estimator(dataset: Dataset | None) -> str:
 def resolve_settings(settings: Settings, dataset: Dataset) -> Settings:
     """The settings with each default that depends on the dataset made concrete, so that the
     settings.yaml written beside the results says what ran: ``estimator: auto`` becomes the
-    estimator it picks, and ``eval.max_time_diff_s: None`` half the median frame period (each
-    estimate matches at most its own frame's ground-truth stamp; 0.01 s below two frames)."""
+    estimator it picks, ``eval.max_time_diff_s: None`` half the median frame period (each
+    estimate matches at most its own frame's ground-truth stamp; 0.01 s below two frames), and a
+    metric estimator's ``eval.align`` se3 unless the settings set it."""
     estimator = auto_estimator(dataset) if settings.estimator == "auto" else settings.estimator
     max_time_diff_s = settings.eval.max_time_diff_s
     if max_time_diff_s is None:
         max_time_diff_s = 0.5 * median_frame_period(dataset) if dataset.num_frames >= 2 else 0.01
-    evaluation = settings.eval.model_copy(update={"max_time_diff_s": max_time_diff_s})
+    update: dict = {"max_time_diff_s": max_time_diff_s}
+    if estimator in METRIC_ESTIMATORS and "align" not in settings.eval.model_fields_set:
+        update["align"] = "se3"
+    evaluation = settings.eval.model_copy(update=update)
     return settings.model_copy(update={"estimator": estimator, "eval": evaluation})
 
 
@@ -65,6 +72,8 @@ def make_estimator(camera: CameraModel, settings: Settings, dataset: Dataset | N
         from evp.vo.nadir_homography import NadirHomographyOdometry
 
         return NadirHomographyOdometry(camera)
+    if kind == "ekf-slam":
+        return ekf_slam_estimator(camera, settings, dataset)
     if kind == "slam":
         from evp.io.vocabulary_files import load_configured_vocabulary
         from evp.runtime.slam import build_slam
@@ -73,6 +82,17 @@ def make_estimator(camera: CameraModel, settings: Settings, dataset: Dataset | N
     from evp.vo.klt_vo import KltVisualOdometry
 
     return KltVisualOdometry(camera, settings.vo)
+
+
+def ekf_slam_estimator(camera: CameraModel, settings: Settings, dataset: Dataset | None) -> Estimator:
+    """Seed 001's EKF-SLAM: it needs the camera's mounting on the robot and the robot's wheels."""
+    from evp.ekf_slam.estimator import EkfSlamEstimator
+
+    if dataset is None or dataset.T_body_cam is None:
+        raise UsageError("estimator ekf-slam needs the camera's mounting on the robot (the dataset's camera-body extrinsic, T_body_cam)")
+    if not dataset.wheel:
+        raise DatasetError(dataset.root, "estimator ekf-slam needs wheel odometry (the robot's encoders and gyro); this dataset has none")
+    return EkfSlamEstimator(camera, dataset.T_body_cam, settings.ekf_slam)
 
 
 def navigation_off(dataset: Dataset, settings: Settings) -> str | None:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from evp.errors import DatasetError, InitialisationError
+from evp.errors import DatasetError, InitialisationError, UsageError
 
 app = typer.Typer()
 ALIGNED = {"none": "unaligned", "se3": "SE3-aligned", "sim3": "Sim3-aligned"}
@@ -39,6 +39,7 @@ def run(
         help="Replay at the recorded frame rate, always feeding the newest frame and dropping those that arrive while the estimator is busy, as the base station does live (default: every frame, as fast as possible).",
     ),
     speed: float = typer.Option(1.0, "--speed", min=0.01, help="With --realtime: play the recording this many times faster."),
+    estimator_name: str | None = typer.Option(None, "--estimator", help="Override the settings' estimator: auto, slam, klt-vo, nadir or ekf-slam."),
 ) -> None:
     """Estimate the camera trajectory of a dataset and evaluate it when ground truth exists."""
     from rich.console import Console
@@ -51,6 +52,8 @@ def run(
     from evp.run_setup import camera_for, make_estimator, navigation_off, navigation_on_refined, navigation_stage, resolve_settings
 
     settings = load_settings(config)
+    if estimator_name is not None:
+        settings = with_estimator(settings, estimator_name)
     dataset = open_dataset(dataset_path, fmt)
     if dataset.num_frames == 0:
         raise DatasetError(dataset_path, f"no camera frames to run on ({dataset.format})")
@@ -95,6 +98,19 @@ def run(
     for reason in metrics["skipped"]:
         typer.echo(f"skipped: {reason}", err=True)
     typer.echo(f"results in {out}")
+
+
+def with_estimator(settings, name: str):
+    """The settings with ``estimator`` set from the command line (the other settings keep whether
+    they were given, which the defaults that depend on the dataset look at)."""
+    from typing import get_args
+
+    from evp.config import Settings
+
+    choices = get_args(Settings.model_fields["estimator"].annotation)
+    if name not in choices:
+        raise UsageError(f"--estimator {name!r}: choose one of {', '.join(choices)}")
+    return settings.model_copy(update={"estimator": name})
 
 
 def echo_navigation(section: dict) -> None:

@@ -45,6 +45,7 @@ import numpy as np
 
 from evp.fusion.geodesy import EnuFrame
 from evp.fusion.innovation import Innovation, gated_innovation
+from evp.fusion.planar_motion import unicycle_step
 from evp.types import BeaconRange, GpsFix, WheelOdometry
 
 X, Y, YAW, SCALE, BIAS, RANGE_SCALE = range(6)
@@ -210,23 +211,15 @@ class OdometryFilter:
         if dt <= 0:
             return
         n = len(self.x)
-        scale, bias, yaw = self.x[SCALE], self.x[BIAS], self.x[YAW]
-        turn = (rate - bias) * dt
-        mid = yaw + 0.5 * turn
-        c, s = math.cos(mid), math.sin(mid)
-        step = scale * speed * dt
-        self.x[X] += step * c
-        self.x[Y] += step * s
-        self.x[YAW] += turn
+        scale, bias = self.x[SCALE], self.x[BIAS]
+        change, d_yaw, d_inputs = unicycle_step(self.x[YAW], scale * speed * dt, (rate - bias) * dt)
+        self.x[[X, Y, YAW]] += change
         F = np.eye(n)
-        F[X, YAW], F[Y, YAW] = -step * s, step * c
-        F[X, SCALE], F[Y, SCALE] = speed * dt * c, speed * dt * s
-        F[X, BIAS], F[Y, BIAS] = 0.5 * step * dt * s, -0.5 * step * dt * c
-        F[YAW, BIAS] = -dt
+        F[[X, Y, YAW], YAW] += d_yaw
+        F[[X, Y, YAW], SCALE] += d_inputs[:, 0] * speed * dt
+        F[[X, Y, YAW], BIAS] -= d_inputs[:, 1] * dt
         G = np.zeros((n, 2))  # d(state)/d(speed, yaw rate)
-        G[X] = scale * dt * c, -0.5 * step * dt * s
-        G[Y] = scale * dt * s, 0.5 * step * dt * c
-        G[YAW, 1] = dt
+        G[[X, Y, YAW]] = d_inputs * [scale * dt, dt]
         speed_sigma = self.noise.speed_sigma_fraction * abs(speed) + self.noise.speed_sigma_m_s
         Q = G @ np.diag([speed_sigma**2, self.noise.yaw_rate_sigma_rad_s**2]) @ G.T
         Q[SCALE, SCALE] += self.noise.scale_walk_per_sqrt_s**2 * dt

@@ -4,12 +4,12 @@ points as an ASCII PLY point cloud (opens in MeshLab, CloudCompare, Open3D)."""
 from __future__ import annotations
 
 import json
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from evp.errors import DataFormatError
+from evp.io.npz_archives import read_archive
 from evp.slam.map import Map
 
 MAP_FORMAT_VERSION = 2  # 2: keyframes carry bag-of-words vectors (1: thumbnails)
@@ -35,16 +35,8 @@ def save_map(slam_map: Map, path: Path) -> None:
 
 def load_map(path: Path, scale_factors: np.ndarray) -> Map:
     """A map saved by :func:`save_map`; a file that is not one, or of another format version, is a clear error."""
-    try:
-        with np.load(Path(path), allow_pickle=False) as archive:
-            # each array read once: indexing the archive decompresses the whole array again, and
-            # per keyframe that took 26 GB for a 520-keyframe map (every slice kept its own copy)
-            data = {name: archive[name] for name in archive.files}
-        meta = json.loads(str(data["meta"]))
-    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as exc:
-        raise DataFormatError(path, f"not an EVP map file ({exc})") from exc
-    if meta.get("format") != "evp-map":
-        raise DataFormatError(path, "not an EVP map file")
+    # per keyframe, indexing the archive again took 26 GB for a 520-keyframe map: read_archive reads each array once
+    data, meta = read_archive(path, "evp-map", "an EVP map file")
     if meta.get("version") != MAP_FORMAT_VERSION:
         raise DataFormatError(path, f"map format version {meta.get('version')}; this EVP reads version {MAP_FORMAT_VERSION} (build the map again)")
     return Map.from_arrays(data, (meta["next_kf"], meta["next_point"]), scale_factors)

@@ -1,0 +1,32 @@
+"""``evp experiment``: the registry, and seed 001's convergence study's headline cases."""
+
+from __future__ import annotations
+
+from evp.experiments.seed001_convergence import CASES, run_case
+from tests.cli.conftest import evp
+
+
+def test_experiments_are_listed_and_an_unknown_one_is_a_usage_error():
+    listed = evp("experiment", "list")
+    assert listed.returncode == 0 and "seed001-convergence" in listed.stdout
+    unknown = evp("experiment", "seed001-convergance", "--out", "/nonexistent")
+    assert unknown.returncode == 2 and "seed001-convergence" in unknown.stderr
+
+
+def test_a_wrong_robot_start_converges_under_3_cm_and_true_states_stay_there():
+    """Seed 001's Figures 9 and 10: 40 cm of start error is gone (< 3 cm) once the surveyed
+    features are seen; true initial states never leave 3 cm."""
+    wrong_start = run_case("robot start off", *CASES["robot start off (Fig. 10)"])
+    assert wrong_start.position_error[-1] < 0.03 and wrong_start.position_error[wrong_start.times > 5.0].max() < 0.03
+    true_start = run_case("true", *CASES["true initial states (Fig. 9)"])
+    assert true_start.position_error.max() < 0.03
+
+
+def test_the_accelerometer_drifts_far_beyond_the_wheels():
+    """Seed 001's Figure 3 on the simulated robot: double integration ends metres off, the wheels
+    within decimetres."""
+    from evp.experiments.seed001_dead_reckoning import METHODS, _errors, paths_for_seed
+
+    truth, paths = paths_for_seed(1)
+    end = {name: _errors(truth, *paths[name])[-1] for name in METHODS}
+    assert end[METHODS[0]] > 10.0 and end[METHODS[1]] < 0.5 and end[METHODS[2]] < 0.5

@@ -236,6 +236,16 @@ class NavigationSettings(_Section):
         gt=0,
         description="start from wheel odometry: the wheels must cover this much path over the keyframe window (the scale's relative error is about the encoder error over it)",
     )
+    predict_max_s: float = Field(
+        0.2,
+        gt=0,
+        description="live answers: the newest IMU-propagated state is carried to the frame's time at its velocity for at most this long (a late IMU stream is not extrapolated further)",
+    )
+    quality_zero_sigma_m: float = Field(
+        5.0,
+        gt=0,
+        description="answer quality (0-100, MAVLink's) falls linearly with the horizontal 1-sigma to 0 here: 5 m is where a position is no better than a consumer GPS's (PX4's EV fusion ignores quality below EKF2_EV_QMIN)",
+    )
     vi_init_keyframe_interval_s: float = Field(
         0.25, gt=0, description="visual-inertial initialisation: a tracked pose at least this long after the previous one is taken as a keyframe"
     )
@@ -288,6 +298,11 @@ class StationSettings(_Section):
     estimate_on_connect: bool = Field(True, description="start estimating as soon as a mobile station is configured (else wait for the operator)")
     resume_window_s: float = Field(
         300.0, gt=0, description="an interrupted session keeps its estimator (and map) this long for a reconnect; later it resumes with a new map"
+    )
+    max_clock_jump_s: float = Field(
+        5.0,
+        gt=0,
+        description="telemetry whose time jumps further ahead than this (per kind) is an operator event (clock_jump): a phone's sensor clock reset, not a pause (GPS fixes come at >= 1 Hz)",
     )
 
 

@@ -159,6 +159,9 @@ class Station:
             generation = self._generations.get(session.id, 0)
             self.mavlink.update(pose_matrix(pose), pose.timestamp, pose.state, pose.quality, generation + pose.reset_counter)
 
+    def on_navigation(self, session: LiveSession, state: dict) -> None:
+        self.broadcast({"type": "navigation", "session_id": session.id, "navigation": state})
+
     def on_event(self, session: LiveSession | None, event: dict) -> None:
         self.broadcast({"type": "event", "event": event})
 

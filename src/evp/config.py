@@ -283,11 +283,21 @@ class MavlinkSettings(_Section):
     mount_offset_m: list[float] = Field(
         default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3, description="camera position in the body frame (FRD)"
     )
-    frame: Literal["local_ned", "local_frd"] = Field("local_ned", description="ODOMETRY frame_id (heading 0 = heading at the start either way)")
-    rate_hz: float = Field(50.0, ge=1.0, le=400.0, description="messages per second")
+    profile: Literal["ardupilot", "px4"] = Field(
+        "ardupilot",
+        description="the autopilot: ODOMETRY frames as it accepts them (ardupilot: LOCAL_FRD/BODY_FRD; px4: LOCAL_NED once the heading is known, else LOCAL_FRD)",
+    )
+    rate_hz: float = Field(
+        50.0, ge=1.0, le=400.0, description="ODOMETRY per second (ArduPilot wants >= 4 Hz, PX4 30-50 Hz; the pose is carried forward between answers)"
+    )
     max_extrapolation_s: float = Field(0.2, ge=0.0, description="how long the last pose is carried forward before output stops")
-    system_id: int = Field(1, ge=1, le=255)
+    system_id: int = Field(1, ge=1, le=255, description="source system id; each further vehicle on the default endpoint gets the next one")
     component_id: int = Field(197, ge=1, le=255, description="197: MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY")
+    gps_input: bool = Field(False, description="also send the georeferenced position as GPS_INPUT (5 Hz), only while the answers are georeferenced")
+    vehicles: dict[str, str] = Field(
+        default_factory=dict,
+        description="per-vehicle endpoints: mobile station device name (its hello.device) -> pymavlink URL; other vehicles share --mavlink, one system id each",
+    )
 
 
 class StationSettings(_Section):

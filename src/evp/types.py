@@ -134,6 +134,7 @@ class PoseEstimate:
     gps_trusted: bool = False
     T_visual_cam: np.ndarray | None = None
     velocity: np.ndarray | None = None  # m/s in the world frame, from a navigation stage
+    velocity_covariance: np.ndarray | None = None  # 3x3, (m/s)^2, world frame
 
     @property
     def visual_pose(self) -> np.ndarray:

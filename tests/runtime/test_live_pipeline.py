@@ -11,7 +11,7 @@ import numpy as np
 from evp.config import NavigationSettings
 from evp.estimator import Estimator
 from evp.fusion.navigation_stage import NavigationStage
-from evp.pipeline import Pipeline, run_frames
+from evp.pipeline import Pipeline, Sink, run_frames
 from evp.runtime.live_pipeline import LivePipeline
 from evp.types import Frame, PoseEstimate, TrackingState
 from tests.fusion.inertial_trajectory import SinusoidTrajectory, imu_times
@@ -22,20 +22,31 @@ FRAME_RATE = 20.0
 
 
 class _GatedVision(Estimator):
-    """Answers a frame with its exact map pose once ``gate`` is open; ``fed`` counts answers."""
+    """Answers a frame with its exact map pose once ``gate`` is open; ``entered`` is set when it
+    starts on a frame."""
 
     def __init__(self, trajectory):
         self.trajectory = trajectory
         self.gate = threading.Event()
         self.gate.set()
-        self.fed = threading.Semaphore(0)
+        self.entered = threading.Event()
         self.frames: list[int] = []
 
     def feed(self, frame: Frame) -> PoseEstimate:
+        self.entered.set()
         self.gate.wait()
         self.frames.append(frame.index)
-        self.fed.release()
         return PoseEstimate(frame.timestamp, map_pose(self.trajectory, frame.timestamp), TrackingState.OK, 80)
+
+
+class _Done(Sink):
+    """Counts the pipeline's answers (after the live pipeline has taken them in)."""
+
+    def __init__(self):
+        self.fed = threading.Semaphore(0)
+
+    def on_estimate(self, frame: Frame, estimate: PoseEstimate, elapsed_ms: float) -> None:
+        self.fed.release()
 
 
 def _frame(index: int, t: float) -> Frame:
@@ -46,7 +57,8 @@ def test_frames_are_answered_at_once_from_the_filter_while_vision_is_busy():
     trajectory = SinusoidTrajectory()
     vision = _GatedVision(trajectory)
     stage = NavigationStage(T_BODY_CAM, NavigationSettings(), lambda: vision.reset_counter)
-    live = LivePipeline(Pipeline(vision, [], [stage]))
+    done = _Done()
+    live = LivePipeline(Pipeline(vision, [done], [stage]))
     imu = iter(trajectory.imu(imu_times(6.0)))
     sample = next(imu)
     answers = []
@@ -59,20 +71,23 @@ def test_frames_are_answered_at_once_from_the_filter_while_vision_is_busy():
             sample = next(imu, None)
         answers.append(live.frame(_frame(k, t)))
         if wait_for_vision:
-            assert vision.fed.acquire(timeout=10)
+            assert done.fed.acquire(timeout=10)
 
     try:
         for k in range(60):  # 3 s with vision keeping up: the filter starts at 2 s
             step(k, wait_for_vision=True)
         assert stage.filter is not None
-        while vision.fed.acquire(blocking=False):
+        while done.fed.acquire(blocking=False):
             pass
         vision.gate.clear()  # vision stalls (a long mapping step) for 1 s
-        for k in range(60, 80):
+        vision.entered.clear()
+        step(60, wait_for_vision=False)
+        assert vision.entered.wait(timeout=10)  # it took frame 60 and stalls on it
+        for k in range(61, 80):
             step(k, wait_for_vision=False)
         stalled = answers[61:80]
         vision.gate.set()
-        assert vision.fed.acquire(timeout=10) and vision.fed.acquire(timeout=10)  # the frame it held, then the newest waiting
+        assert done.fed.acquire(timeout=10) and done.fed.acquire(timeout=10)  # the frame it held, then the newest waiting
         step(80, wait_for_vision=True)
     finally:
         vision.gate.set()
@@ -104,13 +119,37 @@ def test_frames_are_answered_at_once_from_the_filter_while_vision_is_busy():
 def test_without_stages_the_estimators_last_pose_is_carried_with_its_age():
     trajectory = SinusoidTrajectory()
     vision = _GatedVision(trajectory)
-    live = LivePipeline(Pipeline(vision, [], []))
+    done = _Done()
+    live = LivePipeline(Pipeline(vision, [done], []))
     try:
         first = live.frame(_frame(0, 0.0))
-        assert vision.fed.acquire(timeout=10)
+        assert done.fed.acquire(timeout=10)
         second = live.frame(_frame(1, 0.5))
     finally:
         live.close()
     assert first.estimate is None and first.visual_age_s is None
     assert abs(second.visual_age_s - 0.5) < 1e-9 and second.estimate.timestamp == 0.5
     np.testing.assert_allclose(second.estimate.T_world_cam, map_pose(trajectory, 0.0))
+
+
+def test_every_jump_of_the_estimator_steps_the_answers_reset_counter():
+    """A new map or relocalisation (the estimator's reset counter) and a loop correction (its
+    loop closures, which SLAM's counter leaves out) each step the answers' counter."""
+    trajectory = SinusoidTrajectory()
+    vision = _GatedVision(trajectory)
+    vision.loop_closures = []
+    done = _Done()
+    live = LivePipeline(Pipeline(vision, [done], []))
+    counters = []
+    try:
+        for k, jump in enumerate([None, "map reset", None, "loop correction", None]):
+            if jump == "map reset":
+                vision.reset_counter += 1
+            elif jump == "loop correction":
+                vision.loop_closures.append(object())
+            live.frame(_frame(k, 0.1 * k))
+            assert done.fed.acquire(timeout=10)
+            counters.append(live.answer(k, 0.1 * k + 0.01).reset_counter)
+    finally:
+        live.close()
+    assert counters == [0, 1, 1, 2, 2]

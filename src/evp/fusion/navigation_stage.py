@@ -202,7 +202,9 @@ class NavigationStage:
         self.sensors_used.add("imu")
         if self.filter is None:  # the filter reports its own gaps once it runs
             if self.settings.max_imu_gap_s < gap < math.inf:
-                self._warn(sample.timestamp, "imu_gap", f"{gap:.3f} s without IMU samples before {sample.timestamp:.6f} s (initialisation integrates across it)")
+                self._warn(
+                    sample.timestamp, "imu_gap", f"{gap:.3f} s without IMU samples before {sample.timestamp:.6f} s (initialisation integrates across it)"
+                )
             self._imu.append(sample)
             return
         self._propagate(sample)
@@ -325,6 +327,7 @@ class NavigationStage:
             gps_trusted=self.gps_trusted,
             T_visual_cam=estimate.T_world_cam,
             velocity=output.velocity,
+            velocity_covariance=self.filter.covariance[VELOCITY, VELOCITY].copy(),
         )
 
     def predict(self, timestamp: float) -> PoseEstimate | None:
@@ -348,6 +351,7 @@ class NavigationStage:
             georeferenced=output.georeferenced,
             gps_trusted=self.gps_trusted,
             velocity=output.velocity,
+            velocity_covariance=self.filter.covariance[VELOCITY, VELOCITY].copy(),
         )
 
     def geodetic(self, position: np.ndarray) -> tuple[float, float, float] | None:

@@ -67,16 +67,20 @@ class _LockedStage:
 
 
 class _Latest(Sink):
-    """The estimator's newest answer (after the stages) and the newest tracked frame's time."""
+    """The estimator's newest answer (after the stages), the newest tracked frame's time and the
+    estimator's jumps so far (the first sink: the others see them up to date)."""
 
-    def __init__(self):
+    def __init__(self, estimator):
+        self.estimator = estimator
         self.estimate: PoseEstimate | None = None
         self.tracked_at: float | None = None
+        self.jumps = estimator_jumps(estimator)
 
     def on_estimate(self, frame: Frame, estimate: PoseEstimate, elapsed_ms: float) -> None:
         self.estimate = estimate
         if estimate.tracking_state.tracked:
             self.tracked_at = estimate.timestamp
+        self.jumps = estimator_jumps(self.estimator)
 
 
 def estimator_jumps(estimator) -> int:
@@ -95,9 +99,8 @@ class LivePipeline:
         self._lock = threading.Lock()
         self._stages = list(pipeline.stages)
         pipeline.stages = [_LockedStage(stage, self._lock) for stage in self._stages]
-        self._latest = _Latest()
-        pipeline.sinks.append(self._latest)
-        self._estimator_jumps = estimator_jumps(pipeline.estimator)
+        self._latest = _Latest(pipeline.estimator)
+        pipeline.sinks.insert(0, self._latest)
         self._waiting: Frame | None = None
         self._closing = False
         self._wake = threading.Condition()
@@ -134,7 +137,7 @@ class LivePipeline:
         with self._lock:
             stage_jumps = sum(int(getattr(stage, "world_changes", 0)) for stage in self._stages)
         age = None if latest.tracked_at is None else max(0.0, timestamp - latest.tracked_at)
-        return LiveAnswer(seq, timestamp, estimate, age, self._estimator_jumps + stage_jumps)
+        return LiveAnswer(seq, timestamp, estimate, age, latest.jumps + stage_jumps)
 
     def _run(self) -> None:
         while True:
@@ -146,7 +149,6 @@ class LivePipeline:
                 frame, self._waiting = self._waiting, None
             self.pipeline.process(frame)
             self.visual_frames += 1
-            self._estimator_jumps = estimator_jumps(self.pipeline.estimator)
 
     def close(self) -> None:
         """Let the worker finish the frame waiting, then finish the pipeline."""

@@ -46,6 +46,7 @@ def pose_message(seq: int, estimate: PoseEstimate, reset_counter: int, processin
         gps_trusted=estimate.gps_trusted,
         gps="none" if navigation is None else navigation.gps_state,
         velocity=None if estimate.velocity is None else [float(v) for v in estimate.velocity],
+        velocity_covariance=None if estimate.velocity_covariance is None else [float(v) for v in estimate.velocity_covariance.reshape(-1)],
         latitude_deg=None if geodetic is None else geodetic[0],
         longitude_deg=None if geodetic is None else geodetic[1],
         altitude_m=None if geodetic is None else geodetic[2],

@@ -224,6 +224,7 @@ class Pose(_Message):
     gps_trusted: bool = False
     gps: Literal["none", "off", "aligning", "trusted", "untrusted", "unavailable"] = Field("none", description="GPS as the filter uses it ('none': no filter)")
     velocity: list[float] | None = Field(None, description="m/s in the world frame, when metric")
+    velocity_covariance: list[float] | None = Field(None, description="3x3 row-major, (m/s)^2, world frame, when metric")
     latitude_deg: float | None = None
     longitude_deg: float | None = None
     altitude_m: float | None = Field(None, description="WGS-84 ellipsoid height, when georeferenced")

@@ -67,7 +67,7 @@ def test_phone_page_streams_and_operator_sees_the_trajectory(tmp_path, station_d
         phone.click("#start")
         phone.wait_for_function("window.evpPhone.poses >= 40 && window.evpPhone.gps >= 1", timeout=120_000)
         operator.wait_for_function(
-            "(() => { const s = window.evp.selected; return s && (window.evp.trajectories[s] || []).filter(p => p.state === 'OK').length >= 10; })()",
+            "(() => { const s = window.evp.selected; return s && window.evp.trajectories[s] && window.evp.trajectories[s].points.filter(p => p.state === 'OK').length >= 10; })()",
             timeout=60_000,
         )
         # the status bar fills on the station's next status tick (each second)

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 from evp import __version__
 from evp.config import Settings
-from evp.station.protocol import PROTOCOL_VERSION, Config, Hello, Pose, ProtocolError
+from evp.station.protocol import PROTOCOL_VERSION, Config, GpsTelemetry, Hello, Pose, ProtocolError
 from evp.station.recording import has_summary, repair
 from evp.station.session import LiveSession
 from evp.station.store import SessionStore
@@ -170,6 +170,11 @@ class Station:
         session = self.sessions.get(session_id)
         if session is not None:
             session.event("warning", "mavlink_down", text)
+
+    def on_gps(self, session: LiveSession, fix: GpsTelemetry) -> None:
+        self.broadcast(
+            {"type": "gps", "session_id": session.id, "fix": {"timestamp": fix.timestamp, "latitude_deg": fix.latitude_deg, "longitude_deg": fix.longitude_deg}}
+        )
 
     def on_navigation(self, session: LiveSession, state: dict) -> None:
         self.broadcast({"type": "navigation", "session_id": session.id, "navigation": state})

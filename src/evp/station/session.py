@@ -27,6 +27,7 @@ from evp.station.protocol import (
     Dropped,
     Enable,
     Error,
+    GpsTelemetry,
     ImageMessage,
     Log,
     Pose,
@@ -54,6 +55,7 @@ class StationHooks(Protocol):
     def on_status(self, session: LiveSession) -> None: ...
     def on_new_map(self, session: LiveSession) -> None: ...
     def on_navigation(self, session: LiveSession, state: dict) -> None: ...
+    def on_gps(self, session: LiveSession, fix: GpsTelemetry) -> None: ...
 
 
 @dataclass
@@ -191,6 +193,8 @@ class LiveSession:
                 "clock_jump",
                 f"{message.kind} telemetry jumped {message.timestamp - last:.1f} s ahead (more than {jump:g} s): the sensor's clock was reset?",
             )
+        if isinstance(message, GpsTelemetry) and message.latitude_deg is not None:
+            self.station.on_gps(self, message)  # the operator's plot: fused track against GPS
         if self.worker is not None:  # the estimator fuses it (the navigation filter), whether estimating or not
             self.worker.send_side(("telemetry", telemetry_record(message)))
 

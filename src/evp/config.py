@@ -309,6 +309,11 @@ class StationSettings(_Section):
     resume_window_s: float = Field(
         300.0, gt=0, description="an interrupted session keeps its estimator (and map) this long for a reconnect; later it resumes with a new map"
     )
+    vision_wait_s: float = Field(
+        1.0,
+        gt=0,
+        description="live: telemetry waits this long at most for vision's pose of the same time before the navigation filter takes it (the filter runs on that delayed horizon, answers are carried ahead of it on the newest IMU); keep it within navigation.history_s",
+    )
     max_clock_jump_s: float = Field(
         5.0,
         gt=0,

@@ -40,9 +40,10 @@ class Stage(Protocol):
 
     def process(self, frame: Frame, estimate: PoseEstimate) -> PoseEstimate: ...
 
-    def predict(self, timestamp: float) -> PoseEstimate | None:
+    def predict(self, timestamp: float, pending: Sequence[TelemetryRecord] = ()) -> PoseEstimate | None:
         """The stage's own estimate at ``timestamp`` without a new estimate from the estimator (a
-        navigation filter's IMU-propagated state); None when it has none."""
+        navigation filter's IMU-propagated state), ``pending`` the telemetry not yet observed
+        (held back for the estimator); None when it has none."""
         return None
 
 
@@ -135,13 +136,14 @@ class Pipeline:
         self.estimator.settle()
         return estimate
 
-    def predict(self, timestamp: float) -> PoseEstimate | None:
+    def predict(self, timestamp: float, pending: Sequence[TelemetryRecord] = ()) -> PoseEstimate | None:
         """The answer for a frame at ``timestamp`` before (or without) the estimator: the last
-        stage's that has one. Live, each frame gets it at once while the estimator works on the
-        newest frame it can take (see ``evp.runtime.live_pipeline``)."""
+        stage's that has one, given the telemetry not yet observed (``pending``). Live, each frame
+        gets it at once while the estimator works on the newest frame it can take (see
+        ``evp.runtime.live_pipeline``)."""
         for stage in reversed(self.stages):
             predict = getattr(stage, "predict", None)
-            estimate = predict(timestamp) if predict is not None else None
+            estimate = predict(timestamp, pending) if predict is not None else None
             if estimate is not None:
                 return estimate
         return None

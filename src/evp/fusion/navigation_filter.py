@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import enum
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -206,6 +207,22 @@ class NavigationFilter:
             scale_known=x.map_anchored and scale_sigma < self.settings.scale_known_sigma,
             georeferenced=x.georeferenced,
         )
+
+    def predicted(self, imu_ahead: Sequence[ImuSample]) -> NavState:
+        """The newest state carried through IMU samples the filter has not had yet, mean only
+        (PX4's output predictor: the filter stays on a delayed horizon, the answer runs ahead of
+        it); samples not after the newest one, or not finite, are skipped. The filter is unchanged."""
+        if not self._history:
+            return self.state
+        node = self._history[-1]
+        previous, state = node.imu, node.state
+        for sample in imu_ahead:
+            gyro, accel = imu_vectors(sample)
+            if sample.timestamp <= previous.timestamp or not (np.isfinite(gyro).all() and np.isfinite(accel).all()):
+                continue
+            state, _ = strapdown_step(state, previous, sample, self.settings.gravity_m_s2)
+            previous = sample
+        return state
 
     # --- IMU -----------------------------------------------------------------------------------
 

@@ -32,7 +32,7 @@ restored) are kept in ``gps_monitor.events`` and told as warnings.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -317,42 +317,37 @@ class NavigationStage:
         output = self.filter.output(self.T_body_cam)
         self.records.append(NavigationRecord(output, visual))
         self.last_tracking_state = estimate.tracking_state
-        return replace(
-            estimate,
-            T_world_cam=output.T_world_cam,
-            covariance=output.covariance,
-            metric=True,
-            scale_known=output.scale_known,
-            georeferenced=output.georeferenced,
-            gps_trusted=self.gps_trusted,
-            T_visual_cam=estimate.T_world_cam,
-            velocity=output.velocity,
-            velocity_covariance=self.filter.covariance[VELOCITY, VELOCITY].copy(),
-        )
+        return replace(estimate, T_world_cam=output.T_world_cam, T_visual_cam=estimate.T_world_cam, **self._fused_fields(output))
 
-    def predict(self, timestamp: float) -> PoseEstimate | None:
-        """The filter's answer for a frame at ``timestamp`` that vision has not seen (yet): the
-        newest IMU-propagated state, carried to ``timestamp`` at its velocity for at most
-        ``predict_max_s``; None before the filter starts. Live, every frame gets this at once and
-        vision corrects the filter when its pose is ready (the runtime decides when)."""
+    def _fused_fields(self, output: NavigationOutput) -> dict:
+        """What a fused estimate takes from the filter besides its pose."""
+        return {
+            "covariance": output.covariance,
+            "metric": True,
+            "scale_known": output.scale_known,
+            "georeferenced": output.georeferenced,
+            "gps_trusted": self.gps_trusted,
+            "velocity": output.velocity,
+            "velocity_covariance": self.filter.covariance[VELOCITY, VELOCITY].copy(),
+        }
+
+    def predict(self, timestamp: float, pending: Sequence = ()) -> PoseEstimate | None:
+        """The filter's answer for a frame at ``timestamp`` that vision has not seen (yet): its
+        newest state carried through the IMU samples among the ``pending`` telemetry (records the
+        stage has not been given: live, the filter waits for vision, PX4's delayed horizon) and
+        on to ``timestamp`` at its velocity for at most ``predict_max_s``; None before the filter
+        starts. The covariance is the filter's own, at its newest state."""
         if self.filter is None:
             return None
         output = self.filter.output(self.T_body_cam)
-        T_world_cam = output.T_world_cam.copy()
-        T_world_cam[:3, 3] += output.velocity * min(max(0.0, timestamp - output.timestamp), self.settings.predict_max_s)
-        return PoseEstimate(
-            timestamp,
-            T_world_cam,
-            self.last_tracking_state,
-            quality=position_quality(output.covariance, self.settings.quality_zero_sigma_m),
-            covariance=output.covariance,
-            metric=True,
-            scale_known=output.scale_known,
-            georeferenced=output.georeferenced,
-            gps_trusted=self.gps_trusted,
-            velocity=output.velocity,
-            velocity_covariance=self.filter.covariance[VELOCITY, VELOCITY].copy(),
-        )
+        state = self.filter.predicted([r for r in pending if isinstance(r, ImuSample)])
+        T_world_body = np.eye(4)
+        T_world_body[:3, :3], T_world_body[:3, 3] = state.R_world_body, state.position
+        T_world_cam = T_world_body @ self.T_body_cam
+        T_world_cam[:3, 3] += state.velocity * min(max(0.0, timestamp - state.timestamp), self.settings.predict_max_s)
+        quality = position_quality(output.covariance, self.settings.quality_zero_sigma_m)
+        fields = {**self._fused_fields(output), "velocity": state.velocity.copy()}
+        return PoseEstimate(timestamp, T_world_cam, self.last_tracking_state, quality=quality, **fields)
 
     def geodetic(self, position: np.ndarray) -> tuple[float, float, float] | None:
         """Latitude, longitude (degrees) and altitude (m, WGS-84) of a world position once the

@@ -38,8 +38,12 @@ class ProcessEvents:
 class EstimatorProcess:
     """Async handle on one estimator process; create it on the event loop that gets the events."""
 
-    def __init__(self, target: Callable[..., None], args: tuple, events: ProcessEvents, name: str = "evp-estimator"):
+    def __init__(self, target: Callable[..., None], args: tuple, events: ProcessEvents, name: str = "evp-estimator", every_message: bool = False):
+        """``every_message``: once the process is ready, every message goes to it at once (a
+        process that answers each message itself at once, keeping its own newest-first slot);
+        before that the newest one waits, as always."""
         self._events = events
+        self._every_message = every_message
         self._loop = asyncio.get_running_loop()
         # spawn, not fork: the station runs an event loop and threads a forked child would inherit
         context = multiprocessing.get_context("spawn")
@@ -60,7 +64,7 @@ class EstimatorProcess:
         if self._closing:
             self._events.on_dropped(message)
             return
-        if self.ready and not self._busy:
+        if self.ready and (self._every_message or not self._busy):
             self._send(message)
             return
         if self._pending is not None:

@@ -4,24 +4,29 @@ A vehicle needs a pose for every frame, now; SLAM takes 30-300 ms a frame on a s
 more when it maps. So the caller's thread (the link: telemetry and frames as they arrive) and a
 vision worker share the :class:`~evp.pipeline.Pipeline`:
 
-- telemetry goes to the stages as it arrives (a navigation filter propagates on the IMU);
-- a frame is answered at once with the stages' current estimate (:meth:`Pipeline.predict`: the
-  filter's IMU-propagated state), or, while no stage has one (no filter, or before it starts),
-  the estimator's last answer carried to the frame's time; each answer says how old its last
-  visual correction is;
+- telemetry waits for vision (PX4's delayed horizon): the worker gives the stages the records up
+  to a frame's time just before it runs the estimator on that frame, so the stages see
+  telemetry and poses in time order, as offline; a record older than the newest by more than
+  ``max_hold_s`` goes to the stages anyway (vision is stalled; the filter fuses the late pose
+  through its own delayed horizon);
+- a frame is answered at once with the stages' current estimate carried through the telemetry
+  still held (:meth:`Pipeline.predict`: the filter's state propagated on the newest IMU
+  samples), or, while no stage has one (no filter, or before it starts), the estimator's last
+  answer carried to the frame's time; each answer says how old its last visual correction is;
 - the worker runs the estimator on the newest frame it can take (a frame that arrives while it
-  is busy replaces the one waiting), and the stages fuse that pose, at its own time, when it is
-  ready.
+  is busy replaces the one waiting).
 
 The stages are pure and single-threaded; here each call into them holds one lock, so telemetry,
 predictions and visual updates never interleave inside a stage. The estimator runs outside the
-lock. ``at_once=False`` keeps the offline order (each frame answered by the pipeline's sinks after
-the estimator and the stages; the caller bounds what is in flight).
+lock. ``at_once=False`` answers each frame by the pipeline's sinks after the estimator and the
+stages (the caller bounds what is in flight).
 """
 
 from __future__ import annotations
 
 import threading
+from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 from evp.io.dataset import TelemetryRecord
@@ -58,12 +63,12 @@ class _LockedStage:
         with self._lock:
             return self.stage.process(frame, estimate)
 
-    def predict(self, timestamp: float) -> PoseEstimate | None:
+    def predict(self, timestamp: float, pending: Sequence[TelemetryRecord] = ()) -> PoseEstimate | None:
         predict = getattr(self.stage, "predict", None)
         if predict is None:
             return None
         with self._lock:
-            return predict(timestamp)
+            return predict(timestamp, pending)
 
 
 class _Latest(Sink):
@@ -93,10 +98,12 @@ class LivePipeline:
     """``telemetry(record)`` and ``frame(frame)`` from the link's thread; ``close()`` finishes the
     worker and the pipeline."""
 
-    def __init__(self, pipeline: Pipeline, at_once: bool = True):
+    def __init__(self, pipeline: Pipeline, at_once: bool = True, max_hold_s: float = 1.0):
         self.pipeline = pipeline
         self.at_once = at_once
-        self._lock = threading.Lock()
+        self.max_hold_s = max_hold_s
+        self._lock = threading.RLock()  # the stages' calls, and the telemetry held for them
+        self._held: deque[TelemetryRecord] = deque()
         self._stages = list(pipeline.stages)
         pipeline.stages = [_LockedStage(stage, self._lock) for stage in self._stages]
         self._latest = _Latest(pipeline.estimator)
@@ -118,7 +125,15 @@ class LivePipeline:
         return self._lock
 
     def telemetry(self, record: TelemetryRecord) -> None:
-        self.pipeline.telemetry(record)
+        """Held for vision; what vision left waiting longer than ``max_hold_s`` goes on now."""
+        with self._lock:
+            self._held.append(record)
+            self._release(record.timestamp - self.max_hold_s)
+
+    def _release(self, until: float) -> None:
+        """The held records up to ``until`` to the stages (the lock held)."""
+        while self._held and self._held[0].timestamp <= until:
+            self.pipeline.telemetry(self._held.popleft())
 
     def frame(self, frame: Frame) -> LiveAnswer | None:
         """Hand a frame to the estimator (newest first); with ``at_once`` its answer now, else
@@ -130,12 +145,12 @@ class LivePipeline:
         return answer
 
     def answer(self, seq: int, timestamp: float) -> LiveAnswer:
-        estimate = self.pipeline.predict(timestamp)
+        with self._lock:
+            estimate = self.pipeline.predict(timestamp, list(self._held))
+            stage_jumps = sum(int(getattr(stage, "world_changes", 0)) for stage in self._stages)
         latest = self._latest
         if estimate is None and latest.estimate is not None:
             estimate = replace(latest.estimate, timestamp=timestamp)
-        with self._lock:
-            stage_jumps = sum(int(getattr(stage, "world_changes", 0)) for stage in self._stages)
         age = None if latest.tracked_at is None else max(0.0, timestamp - latest.tracked_at)
         return LiveAnswer(seq, timestamp, estimate, age, latest.jumps + stage_jumps)
 
@@ -147,6 +162,8 @@ class LivePipeline:
                 if self._waiting is None:
                     return
                 frame, self._waiting = self._waiting, None
+            with self._lock:
+                self._release(frame.timestamp)
             self.pipeline.process(frame)
             self.visual_frames += 1
 
@@ -156,4 +173,6 @@ class LivePipeline:
             self._closing = True
             self._wake.notify()
         self._worker.join()
+        with self._lock:  # what came after the last frame answers no frame (as offline), but the stages keep it
+            self._release(float("inf"))
         self.pipeline.finish()

@@ -280,7 +280,8 @@ class LiveSession:
         settings_json = self.station.settings_json()
         self.store.insert("settings", session_id=self.id, t=time.time(), source="server", data_json=settings_json)
         events = ProcessEvents(self._worker_ready, self._worker_pose, self._worker_error, self._worker_dropped, self._worker_exit, self._worker_report)
-        self.worker = EstimatorProcess(worker_main, (self.camera, settings_json, self.T_body_cam, self.answers), events)
+        args = (self.camera, settings_json, self.T_body_cam, self.answers)
+        self.worker = EstimatorProcess(worker_main, args, events, every_message=self.answers == "at_once")
         self.station.on_new_map(self)
         self.reply(Status(state="starting", estimating=self.estimating, message="estimator starting"))
 

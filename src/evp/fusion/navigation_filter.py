@@ -208,21 +208,23 @@ class NavigationFilter:
             georeferenced=x.georeferenced,
         )
 
-    def predicted(self, imu_ahead: Sequence[ImuSample]) -> NavState:
+    def predicted(self, imu_ahead: Sequence[ImuSample], start: tuple[NavState, ImuSample] | None = None) -> tuple[NavState, ImuSample | None]:
         """The newest state carried through IMU samples the filter has not had yet, mean only
         (PX4's output predictor: the filter stays on a delayed horizon, the answer runs ahead of
-        it); samples not after the newest one, or not finite, are skipped. The filter is unchanged."""
+        it), with the last sample used; ``start``, a previous answer of this call from the same
+        newest state, continues from there. Samples not after the last one, or not finite, are
+        skipped. The filter is unchanged."""
         if not self._history:
-            return self.state
+            return self.state, None
         node = self._history[-1]
-        previous, state = node.imu, node.state
+        state, previous = start if start is not None else (node.state, node.imu)
         for sample in imu_ahead:
             gyro, accel = imu_vectors(sample)
             if sample.timestamp <= previous.timestamp or not (np.isfinite(gyro).all() and np.isfinite(accel).all()):
                 continue
             state, _ = strapdown_step(state, previous, sample, self.settings.gravity_m_s2)
             previous = sample
-        return state
+        return state, previous
 
     # --- IMU -----------------------------------------------------------------------------------
 

@@ -42,7 +42,7 @@ from evp.fusion.geodesy import EnuFrame
 from evp.fusion.gps_heading import WorldAlignment, align_to_gps, horizontal_spread
 from evp.fusion.gps_monitor import GpsMonitor, GpsTrust
 from evp.fusion.measurements import BaroAltitude, GpsPosition, RangeHeight, VisualPose, WheelSpeed, YawRate
-from evp.fusion.nav_state import ATTITUDE, LOG_SCALE, MAP_ATTITUDE, MAP_POSITION, POSITION, VELOCITY
+from evp.fusion.nav_state import ATTITUDE, LOG_SCALE, MAP_ATTITUDE, MAP_POSITION, POSITION, VELOCITY, NavState
 from evp.fusion.navigation_filter import Innovation, NavigationFilter, NavigationOutput, initial_covariance
 from evp.fusion.visual_inertial_init import InertialAlignment, initialise_visual_inertial
 from evp.fusion.wheel_init import initialise_from_wheels
@@ -158,6 +158,7 @@ class NavigationStage:
         self.alignment_progress: AlignmentProgress | None = None  # None until a fix is paired with the running filter
         self.last_tracking_state = TrackingState.NOT_INITIALIZED
         self.world_changes = 0  # jumps of the output frame: the filter's start (map units to metres) and the turn to ENU
+        self._ahead: tuple[NavState, NavState, ImuSample] | None = None  # (filter state, it carried ahead, last sample): predict's cache
 
     @property
     def warnings(self) -> list[str]:
@@ -340,7 +341,7 @@ class NavigationStage:
         if self.filter is None:
             return None
         output = self.filter.output(self.T_body_cam)
-        state = self.filter.predicted([r for r in pending if isinstance(r, ImuSample)])
+        state = self._carried_ahead([r for r in pending if isinstance(r, ImuSample)])
         T_world_body = np.eye(4)
         T_world_body[:3, :3], T_world_body[:3, 3] = state.R_world_body, state.position
         T_world_cam = T_world_body @ self.T_body_cam
@@ -348,6 +349,21 @@ class NavigationStage:
         quality = position_quality(output.covariance, self.settings.quality_zero_sigma_m)
         fields = {**self._fused_fields(output), "velocity": state.velocity.copy()}
         return PoseEstimate(timestamp, T_world_cam, self.last_tracking_state, quality=quality, **fields)
+
+    def _carried_ahead(self, imu_ahead: list[ImuSample]) -> NavState:
+        """The filter's newest state carried through ``imu_ahead``; each sample is integrated
+        once while the filter's state stays the same (answers come at 30 Hz, the samples at
+        200 Hz: redoing the whole held second for each answer would cost 30 times as much)."""
+        newest = self.filter.state
+        start = None
+        if self._ahead is not None and self._ahead[0] is newest:
+            _, state, last = self._ahead
+            start = (state, last)
+            imu_ahead = [s for s in imu_ahead if s.timestamp > last.timestamp]
+        state, last = self.filter.predicted(imu_ahead, start)
+        if last is not None:
+            self._ahead = (newest, state, last)
+        return state
 
     def geodetic(self, position: np.ndarray) -> tuple[float, float, float] | None:
         """Latitude, longitude (degrees) and altitude (m, WGS-84) of a world position once the

@@ -33,6 +33,10 @@ from evp.io.dataset import TelemetryRecord
 from evp.pipeline import Pipeline, Sink
 from evp.types import Frame, PoseEstimate
 
+# The vision thread hands the held telemetry to the stages this many records at a time (the lock
+# taken for each batch): 20 IMU steps of the filter take a few ms, so an answer waits no longer.
+RELEASE_BATCH = 20
+
 
 @dataclass(frozen=True)
 class LiveAnswer:
@@ -130,10 +134,16 @@ class LivePipeline:
             self._held.append(record)
             self._release(record.timestamp - self.max_hold_s)
 
-    def _release(self, until: float) -> None:
-        """The held records up to ``until`` to the stages (the lock held)."""
+    def _release(self, until: float, batch: int | None = None) -> bool:
+        """The held records up to ``until`` to the stages (the lock held), at most ``batch`` of
+        them; True when some are left."""
+        count = 0
         while self._held and self._held[0].timestamp <= until:
+            if batch is not None and count == batch:
+                return True
             self.pipeline.telemetry(self._held.popleft())
+            count += 1
+        return False
 
     def frame(self, frame: Frame) -> LiveAnswer | None:
         """Hand a frame to the estimator (newest first); with ``at_once`` its answer now, else
@@ -162,8 +172,10 @@ class LivePipeline:
                 if self._waiting is None:
                     return
                 frame, self._waiting = self._waiting, None
-            with self._lock:
-                self._release(frame.timestamp)
+            more = True
+            while more:  # in batches: the link's thread answers frames between them
+                with self._lock:
+                    more = self._release(frame.timestamp, RELEASE_BATCH)
             self.pipeline.process(frame)
             self.visual_frames += 1
 

@@ -187,8 +187,9 @@ def _serve(connection, live: LivePipeline, send, reports: NavigationReports | No
             return
         if item is None:
             return
-        if isinstance(item, tuple):  # ("telemetry", record)
-            live.telemetry(item[1])
+        if isinstance(item, tuple):  # ("telemetry", [record, ...])
+            for record in item[1]:
+                live.telemetry(record)
         else:
             start = time.perf_counter()
             try:  # decoded before it is answered: an image that does not decode gets its error, not a pose

@@ -25,7 +25,7 @@ README = BENCH / "README.md"
 HELPERS = {"report.py", "results.py"}  # not benchmarks
 QUICK = [["eval_vs_evo.py"], ["sim_speed.py", "--skip-flight"], ["gps_alignment.py", "--skip-rendered"], ["dropped_frames.py"]]
 # the order of the sections: the issue's main bench first, then the live ones, then the rest by name
-FIRST = ["run_sequences", "realtime_replay", "live_replays", "mapping_lag", "long_flight", "dropped_frames", "station_latency"]
+FIRST = ["run_sequences", "realtime_replay", "live_replays", "mapping_lag", "long_flight", "dropped_frames", "station_latency", "live_navigation"]
 
 INTRO = """\
 # Benchmarks

@@ -245,6 +245,16 @@ class NavigationSettings(_Section):
         gt=0,
         description="start from wheel odometry: the wheels must cover this much path over the keyframe window (the scale's relative error is about the encoder error over it)",
     )
+    predict_max_s: float = Field(
+        0.2,
+        gt=0,
+        description="live answers: the newest IMU-propagated state is carried to the frame's time at its velocity for at most this long (a late IMU stream is not extrapolated further)",
+    )
+    quality_zero_sigma_m: float = Field(
+        5.0,
+        gt=0,
+        description="answer quality (0-100, MAVLink's) falls linearly with the horizontal 1-sigma to 0 here: 5 m is where a position is no better than a consumer GPS's (PX4's EV fusion ignores quality below EKF2_EV_QMIN)",
+    )
     vi_init_keyframe_interval_s: float = Field(
         0.25, gt=0, description="visual-inertial initialisation: a tracked pose at least this long after the previous one is taken as a keyframe"
     )
@@ -287,11 +297,21 @@ class MavlinkSettings(_Section):
     mount_offset_m: list[float] = Field(
         default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3, description="camera position in the body frame (FRD)"
     )
-    frame: Literal["local_ned", "local_frd"] = Field("local_ned", description="ODOMETRY frame_id (heading 0 = heading at the start either way)")
-    rate_hz: float = Field(50.0, ge=1.0, le=400.0, description="messages per second")
+    profile: Literal["ardupilot", "px4"] = Field(
+        "ardupilot",
+        description="the autopilot: ODOMETRY frames as it accepts them (ardupilot: LOCAL_FRD/BODY_FRD; px4: LOCAL_NED once the heading is known, else LOCAL_FRD)",
+    )
+    rate_hz: float = Field(
+        50.0, ge=1.0, le=400.0, description="ODOMETRY per second (ArduPilot wants >= 4 Hz, PX4 30-50 Hz; the pose is carried forward between answers)"
+    )
     max_extrapolation_s: float = Field(0.2, ge=0.0, description="how long the last pose is carried forward before output stops")
-    system_id: int = Field(1, ge=1, le=255)
+    system_id: int = Field(1, ge=1, le=255, description="source system id; each further vehicle on the default endpoint gets the next one")
     component_id: int = Field(197, ge=1, le=255, description="197: MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY")
+    gps_input: bool = Field(False, description="also send the georeferenced position as GPS_INPUT (5 Hz), only while the answers are georeferenced")
+    vehicles: dict[str, str] = Field(
+        default_factory=dict,
+        description="per-vehicle endpoints: mobile station device name (its hello.device) -> pymavlink URL; other vehicles share --mavlink, one system id each",
+    )
 
 
 class StationSettings(_Section):
@@ -302,6 +322,16 @@ class StationSettings(_Section):
     estimate_on_connect: bool = Field(True, description="start estimating as soon as a mobile station is configured (else wait for the operator)")
     resume_window_s: float = Field(
         300.0, gt=0, description="an interrupted session keeps its estimator (and map) this long for a reconnect; later it resumes with a new map"
+    )
+    vision_wait_s: float = Field(
+        1.0,
+        gt=0,
+        description="live: telemetry waits this long at most for vision's pose of the same time before the navigation filter takes it (the filter runs on that delayed horizon, answers are carried ahead of it on the newest IMU); keep it within navigation.history_s",
+    )
+    max_clock_jump_s: float = Field(
+        5.0,
+        gt=0,
+        description="telemetry whose time jumps further ahead than this (per kind) is an operator event (clock_jump): a phone's sensor clock reset, not a pause (GPS fixes come at >= 1 Hz)",
     )
 
 

@@ -40,6 +40,12 @@ class Stage(Protocol):
 
     def process(self, frame: Frame, estimate: PoseEstimate) -> PoseEstimate: ...
 
+    def predict(self, timestamp: float, pending: Sequence[TelemetryRecord] = ()) -> PoseEstimate | None:
+        """The stage's own estimate at ``timestamp`` without a new estimate from the estimator (a
+        navigation filter's IMU-propagated state), ``pending`` the telemetry not yet observed
+        (held back for the estimator); None when it has none."""
+        return None
+
 
 class Sink:
     """Where the pipeline's results go (a recorder, files, a socket back to the vehicle, a
@@ -129,6 +135,18 @@ class Pipeline:
             sink.on_estimate(frame, estimate, elapsed_ms)
         self.estimator.settle()
         return estimate
+
+    def predict(self, timestamp: float, pending: Sequence[TelemetryRecord] = ()) -> PoseEstimate | None:
+        """The answer for a frame at ``timestamp`` before (or without) the estimator: the last
+        stage's that has one, given the telemetry not yet observed (``pending``). Live, each frame
+        gets it at once while the estimator works on the newest frame it can take (see
+        ``evp.runtime.live_pipeline``)."""
+        for stage in reversed(self.stages):
+            predict = getattr(stage, "predict", None)
+            estimate = predict(timestamp, pending) if predict is not None else None
+            if estimate is not None:
+                return estimate
+        return None
 
     def telemetry(self, record: TelemetryRecord) -> None:
         """One telemetry record (as it arrives live, or in time order from a dataset) to the

@@ -120,7 +120,7 @@ class PoseEstimate:
     makes the pose metric and gravity-aligned sets ``metric`` and keeps the estimator's pose in
     ``T_visual_cam``; ``scale_known`` says its scale's uncertainty is below the settings' bound,
     ``georeferenced`` that the world is ENU at a GPS origin, ``gps_trusted`` that GPS is being fused
-    (the trust monitor finds it consistent).
+    (the trust monitor finds it consistent); ``velocity`` is the stage's, in its world frame.
     """
 
     timestamp: float
@@ -133,6 +133,8 @@ class PoseEstimate:
     georeferenced: bool = False
     gps_trusted: bool = False
     T_visual_cam: np.ndarray | None = None
+    velocity: np.ndarray | None = None  # m/s in the world frame, from a navigation stage
+    velocity_covariance: np.ndarray | None = None  # 3x3, (m/s)^2, world frame
 
     @property
     def visual_pose(self) -> np.ndarray:

@@ -67,7 +67,7 @@ def test_phone_page_streams_and_operator_sees_the_trajectory(tmp_path, station_d
         phone.click("#start")
         phone.wait_for_function("window.evpPhone.poses >= 40 && window.evpPhone.gps >= 1", timeout=120_000)
         operator.wait_for_function(
-            "(() => { const s = window.evp.selected; return s && (window.evp.trajectories[s] || []).filter(p => p.state === 'OK').length >= 10; })()",
+            "(() => { const s = window.evp.selected; return s && window.evp.trajectories[s] && window.evp.trajectories[s].points.filter(p => p.state === 'OK').length >= 10; })()",
             timeout=60_000,
         )
         # the status bar fills on the station's next status tick (each second)
@@ -92,3 +92,61 @@ def test_phone_page_streams_and_operator_sees_the_trajectory(tmp_path, station_d
         assert len(store.rows("poses", session_id)) >= 40
     finally:
         store.close()
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (scripts/test.sh installs it when it can)")
+def test_operator_page_shows_the_gps_alignment_the_trust_change_and_the_alarm(station_data):
+    """The operator page fed the messages a station sends during a flight (the station's side of
+    them is tested in tests/station/test_faults.py and tests/runtime): the alignment phase, GPS
+    trusted with the fused track against GPS, the spoofing alarm as GPS is pulled off; and a
+    long session's 20000 poses kept to a couple of thousand points."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    sid = "20260101-000000-flight"
+
+    def pose(k: int, gps: str, georeferenced: bool) -> dict:
+        east = 0.5 * k
+        return {
+            "seq": k, "timestamp": k / 30.0, "t": [east, 0.0, 60.0], "q": [1, 0, 0, 0], "state": "OK", "quality": 90, "metric": True,
+            "georeferenced": georeferenced, "gps_trusted": gps == "trusted", "gps": gps, "visual_age_s": 0.05,
+            "latitude_deg": 43.7238 if georeferenced else None, "longitude_deg": 10.3966 + east / 80500.0 if georeferenced else None,
+            "altitude_m": 64.0 if georeferenced else None,
+        }  # fmt: skip
+
+    def feed(page, *messages) -> None:
+        for message in messages:
+            page.evaluate("m => onMessage(m)", message)
+
+    alignment = {"pairs": 12, "spread_m": 8.0, "needed_m": 20.0, "model": None, "residual_m": None}
+    with running_station(station_data) as station, sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        page = browser.new_context(ignore_https_errors=True).new_page()
+        page.goto(station.http)
+        page.wait_for_function("document.getElementById('st-link').textContent === 'up'")
+        navigation = {"status": "initialised", "running": True, "gps": "aligning", "alignment": alignment, "sensors": ["imu", "gps"]}
+        feed(page, {"type": "navigation", "session_id": sid, "navigation": navigation}, {"type": "pose", "session_id": sid, "pose": pose(0, "aligning", False)})
+        banner = page.locator("#nav-banner")
+        assert "GPS alignment: 12 fixes, spread 8.0 of 20 m" in banner.inner_text()
+        fitted = {
+            **navigation,
+            "gps": "trusted",
+            "alignment": {**alignment, "pairs": 30, "spread_m": 20.5, "model": "heading + translation", "residual_m": 1.2},
+        }
+        feed(page, {"type": "navigation", "session_id": sid, "navigation": fitted})
+        for k in range(1, 60):
+            fix = {"timestamp": k / 30.0, "latitude_deg": 43.7238 + 1e-6 * (k % 3), "longitude_deg": 10.3966 + 0.5 * k / 80500.0}
+            feed(page, {"type": "gps", "session_id": sid, "fix": fix}, {"type": "pose", "session_id": sid, "pose": pose(k, "trusted", True)})
+        page.wait_for_function("document.getElementById('nav-banner').dataset.gps === 'trusted'")
+        assert banner.get_attribute("class") == "banner ok" and "residual 1.20 m" in banner.inner_text()
+        page.screenshot(path=str(ARTIFACTS / "operator_gps_trusted.png"), full_page=True)
+        alarm = {"session_id": sid, "t": 1.7e9, "level": "warning", "code": "spoofing_alarm", "text": "GPS at 62.0 s: GPS disagrees with vision by 9 m"}
+        feed(page, {"type": "event", "event": alarm}, {"type": "pose", "session_id": sid, "pose": pose(60, "untrusted", True)})
+        assert banner.get_attribute("class") == "banner alarm" and "SPOOFING" in banner.inner_text()
+        assert "[spoofing_alarm]" in page.inner_text("#event-log")
+        page.screenshot(path=str(ARTIFACTS / "operator_spoofing_alarm.png"), full_page=True)
+        kept = page.evaluate(
+            """sid => { for (let k = 61; k < 20061; k++) onMessage({type: "pose", session_id: sid, pose: Object.assign({}, window.evp.trajectories[sid].last, {seq: k, timestamp: k / 30})});
+                        return window.evp.trajectories[sid].points.length; }""",
+            sid,
+        )
+        assert 1000 <= kept <= 2001
+        browser.close()

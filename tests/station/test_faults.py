@@ -10,6 +10,7 @@ import time
 import urllib.error
 import urllib.request
 
+import numpy as np
 import pytest
 import websockets
 
@@ -246,3 +247,49 @@ def test_unresumed_session_is_released_and_resumes_from_disk_with_a_new_map(tmp_
         assert sum(1 for topic, _, _ in decoded_messages(session["mcap_path"]) if topic.startswith("/camera/image")) == 6
     finally:
         store.close()
+
+
+def test_bad_telemetry_gets_specific_events_and_the_session_and_recording_go_on(station_data, frames):
+    """Telemetry for the navigation filter (the session gave its IMU extrinsic): NaN refused,
+    a clock that jumps, an IMU at an irregular rate, GPS without lock; each is its own event."""
+    camera, images = frames
+    imu = '{{"type": "telemetry", "kind": "imu", "timestamp": {t}, "gyro_rad_s": [0, 0, 0], "accel_m_s2": [0, 0, {a}]}}'
+
+    async def scenario(url: str) -> str:
+        connection = await _connect(url)
+        await connection.send(encode(Hello(protocol=PROTOCOL_VERSION, token=TOKEN, device="test")))
+        welcome, _ = await _until(connection, "welcome")
+        await connection.send(encode(Config(camera=camera, T_body_cam=[float(v) for v in np.eye(4).reshape(-1)])))
+        while (await _until(connection, "status"))[0].state != "running":
+            pass
+        for k in range(20):  # 100 Hz
+            await connection.send(imu.format(t=0.01 * k, a=9.8))
+        await connection.send(imu.format(t=0.5, a="NaN"))
+        error, _ = await _until(connection, "error")
+        assert error.code == "malformed" and "NaN" in error.message
+        await connection.send(imu.format(t=0.6, a=9.8))  # 0.41 s after the last: an irregular IMU
+        await connection.send(imu.format(t=100.0, a=9.8))  # its clock jumps
+        await connection.send('{"type": "telemetry", "kind": "gps", "timestamp": 100.0, "latitude_deg": null, "longitude_deg": null}')
+        await connection.send(encode_image(images[0].image, 0, images[0].timestamp, "png").pack())
+        pose, _ = await _until(connection, "pose")  # the session went on
+        assert pose.seq == 0 and pose.gps == "off" and not pose.metric
+        await connection.send('{"type": "bye"}')
+        await connection.close()
+        return welcome.session_id
+
+    with running_station(station_data, "--token", TOKEN) as station, OperatorFeed(station, TOKEN) as feed:
+        session_id = asyncio.run(scenario(station.url))
+        for code in ("imu_gap", "clock_jump", "gps_no_lock"):
+            assert feed.event(code, session_id, timeout=30)["level"] == "warning"
+        feed.event("ended", session_id)
+    store = _store(station_data)
+    try:
+        logged = [e["code"] for e in store.rows("events", session_id)]
+        assert {"malformed", "imu_gap", "clock_jump", "gps_no_lock"} <= set(logged)
+        kinds = [r["kind"] for r in store.rows("telemetry", session_id)]
+        assert kinds.count("imu") == 22 and kinds.count("gps") == 1  # everything that parsed is recorded
+        session = store.session(session_id)
+    finally:
+        store.close()
+    topics = [topic for topic, _, _ in decoded_messages(session["mcap_path"], {"/imu", "/gps/fix"})]
+    assert topics.count("/imu") == 22 and topics.count("/gps/fix") == 1

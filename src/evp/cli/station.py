@@ -33,7 +33,8 @@ def serve(
 
 def run_stream(source_spec, url, realtime, encoding, jpeg_quality, camera, max_frames, token, resume, cafile, fingerprint, out, quiet, echo) -> dict:
     """Stream a source to a station; the poses received are echoed (unless quiet) and written to
-    ``out`` (poses.tum, summary.json) when given. Returns the summary."""
+    ``out`` (poses.tum: the tracked ones; answers.jsonl: every answer with its fields and its
+    frame-sent to answer-received latency; summary.json) when given. Returns the summary."""
     import asyncio
 
     from evp.io.trajectory import tum_text
@@ -60,6 +61,8 @@ def run_stream(source_spec, url, realtime, encoding, jpeg_quality, camera, max_f
         poses = [report.poses[k] for k in sorted(report.poses)]
         (out / "poses.tum").write_text(tum_text(tracked_trajectory(poses)))
         (out / "summary.json").write_text(json.dumps(summary, indent=2))
+        lines = (json.dumps({**pose.model_dump(exclude={"type"}), "latency_ms": report.latency_ms.get(pose.seq)}) for pose in poses)
+        (out / "answers.jsonl").write_text("".join(line + "\n" for line in lines))
     return summary
 
 
@@ -76,7 +79,7 @@ def stream(
     resume: str | None = typer.Option(None, "--resume", help="Continue this session (after a dropped link)."),
     cafile: str | None = typer.Option(None, "--cafile", help="The station's cert.pem, to verify it (else its fingerprint is printed)."),
     fingerprint: str | None = typer.Option(None, "--fingerprint", help="Refuse a station whose certificate has another SHA-256 fingerprint."),
-    out: Path | None = typer.Option(None, "--out", help="Write the received poses here (poses.tum, summary.json)."),
+    out: Path | None = typer.Option(None, "--out", help="Write the received poses here (poses.tum, answers.jsonl, summary.json)."),
     quiet: bool = typer.Option(False, "--quiet", help="Print only the summary, not each pose."),
 ) -> None:
     """Stream to a base station as a mobile station would; prints each pose, then a JSON summary."""

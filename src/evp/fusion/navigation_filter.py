@@ -25,6 +25,7 @@ correlation with the body pose), so the jump never enters the body state as moti
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -177,6 +178,24 @@ class NavigationFilter:
             scale_known=x.map_anchored and scale_sigma < self.settings.scale_known_sigma,
             georeferenced=x.georeferenced,
         )
+
+    def predicted(self, imu_ahead: Sequence[ImuSample], start: tuple[NavState, ImuSample] | None = None) -> tuple[NavState, ImuSample | None]:
+        """The newest state carried through IMU samples the filter has not had yet, mean only
+        (PX4's output predictor: the filter stays on a delayed horizon, the answer runs ahead of
+        it), with the last sample used; ``start``, a previous answer of this call from the same
+        newest state, continues from there. Samples not after the last one, or not finite, are
+        skipped. The filter is unchanged."""
+        if not self._history:
+            return self.state, None
+        node = self._history[-1]
+        state, previous = start if start is not None else (node.state, node.imu)
+        for sample in imu_ahead:
+            gyro, accel = imu_vectors(sample)
+            if sample.timestamp <= previous.timestamp or not (np.isfinite(gyro).all() and np.isfinite(accel).all()):
+                continue
+            state, _ = strapdown_step(state, previous, sample, self.settings.gravity_m_s2)
+            previous = sample
+        return state, previous
 
     # --- IMU -----------------------------------------------------------------------------------
 

@@ -32,7 +32,7 @@ restored) are kept in ``gps_monitor.events`` and told as warnings.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -43,7 +43,7 @@ from evp.fusion.gps_heading import WorldAlignment, align_to_gps, horizontal_spre
 from evp.fusion.gps_monitor import GpsMonitor, GpsTrust
 from evp.fusion.innovation import Innovation
 from evp.fusion.measurements import BaroAltitude, GpsPosition, RangeHeight, VisualPose, WheelSpeed, YawRate
-from evp.fusion.nav_state import ATTITUDE, LOG_SCALE, MAP_ATTITUDE, MAP_POSITION, POSITION, VELOCITY
+from evp.fusion.nav_state import ATTITUDE, LOG_SCALE, MAP_ATTITUDE, MAP_POSITION, POSITION, VELOCITY, NavState
 from evp.fusion.navigation_filter import NavigationFilter, NavigationOutput, initial_covariance
 from evp.fusion.visual_inertial_init import InertialAlignment, initialise_visual_inertial
 from evp.fusion.wheel_init import initialise_from_wheels
@@ -72,6 +72,13 @@ START_MAP_POSITION_SIGMA_M = 0.01
 START_MIN_LOG_SCALE_SIGMA = 0.01
 
 
+def position_quality(covariance: np.ndarray, zero_sigma_m: float) -> int:
+    """0-100 (MAVLink's ``quality``) from a pose covariance: 100 for a known position, falling
+    linearly with the horizontal 1-sigma to 0 at ``zero_sigma_m``."""
+    sigma = math.sqrt(max(0.0, 0.5 * float(covariance[0, 0] + covariance[1, 1])))
+    return int(round(100.0 * max(0.0, 1.0 - sigma / zero_sigma_m)))
+
+
 @dataclass(frozen=True)
 class NavigationRecord:
     """What the filter said at one frame: its output and the visual update's innovation (None
@@ -79,6 +86,38 @@ class NavigationRecord:
 
     output: NavigationOutput
     visual: Innovation | None
+
+
+@dataclass(frozen=True)
+class Notice:
+    """Something the operator should hear of, as it happens: ``code`` names it (the filter's
+    ``imu_not_finite`` / ``imu_out_of_order`` / ``imu_gap``, ``gps_no_lock``, the GPS monitor's
+    ``spoofing_alarm`` / ``gps_lost`` / ``gps_back`` / ``trust_restored``, and the ``info``
+    milestones ``navigation_started`` / ``georeferenced``)."""
+
+    timestamp: float
+    level: str  # info, warning
+    code: str
+    text: str
+
+
+@dataclass(frozen=True)
+class AlignmentProgress:
+    """Where the GPS heading fit stands (seed 002's alignment phase, shown live): the pairs of
+    filter position and fix collected, their horizontal spread against the spread it needs, and,
+    once fitted, the model and the fit's RMS horizontal residual."""
+
+    pairs: int
+    spread_m: float
+    needed_m: float
+    model: str | None = None
+    residual_m: float | None = None
+
+
+# The fit :func:`align_to_gps` makes: a heading about the vertical and a translation, the scale
+# and gravity being the filter's (seed 002 chooses among models offline; live the filter already
+# knows the scale, so only these four degrees of freedom are left).
+ALIGNMENT_MODEL = "heading + translation (filter scale)"
 
 
 @dataclass(frozen=True)
@@ -111,7 +150,7 @@ class NavigationStage:
         self.alignment: InertialAlignment | None = None  # the initialisation that started the filter
         self.initialised_at: float | None = None
         self.status = "scale not yet observable: no tracked pose yet"
-        self.warnings: list[str] = []
+        self.notices: list[Notice] = []
         self.records: list[NavigationRecord] = []
         self.sensors_used: set[str] = set()
         self._imu: list[ImuSample] = []  # before the filter starts: the samples the initialisation needs
@@ -128,6 +167,19 @@ class NavigationStage:
         self._gps_locked = True  # False from a fix without lock until one with it (one warning per loss)
         self._travelled_m = 0.0
         self._last_fix_position: np.ndarray | None = None
+        self.alignment_progress: AlignmentProgress | None = None  # None until a fix is paired with the running filter
+        self.last_tracking_state = TrackingState.NOT_INITIALIZED
+        self.world_changes = 0  # jumps of the output frame: the filter's start (map units to metres) and the turn to ENU
+        self._ahead: tuple[NavState, NavState, ImuSample] | None = None  # (filter state, it carried ahead, last sample): predict's cache
+
+    @property
+    def warnings(self) -> list[str]:
+        """The texts of the warning notices (NaN or out-of-order IMU, gaps, GPS without lock, the
+        GPS monitor's events), in order."""
+        return [n.text for n in self.notices if n.level == "warning"]
+
+    def _warn(self, timestamp: float, code: str, text: str) -> None:
+        self.notices.append(Notice(timestamp, "warning", code, text))
 
     # --- telemetry -----------------------------------------------------------------------------
 
@@ -152,19 +204,28 @@ class NavigationStage:
     def _observe_imu(self, sample: ImuSample) -> None:
         values = (sample.timestamp, *sample.angular_velocity_rad_s, *sample.linear_acceleration_m_s2)
         if not all(math.isfinite(v) for v in values):
-            self.warnings.append(f"IMU sample at {sample.timestamp} holds NaN or infinite values: dropped")
+            self._warn(sample.timestamp, "imu_not_finite", f"IMU sample at {sample.timestamp} holds NaN or infinite values: dropped")
             return
         if sample.timestamp <= self._last_imu_stamp:
-            self.warnings.append(f"IMU sample at {sample.timestamp:.6f} s is not after the previous one ({self._last_imu_stamp:.6f} s): dropped")
+            text = f"IMU sample at {sample.timestamp:.6f} s is not after the previous one ({self._last_imu_stamp:.6f} s): dropped"
+            self._warn(sample.timestamp, "imu_out_of_order", text)
             return
+        gap = sample.timestamp - self._last_imu_stamp
         self._last_imu_stamp = sample.timestamp
         self.sensors_used.add("imu")
-        if self.filter is None:
+        if self.filter is None:  # the filter reports its own gaps once it runs
+            if self.settings.max_imu_gap_s < gap < math.inf:
+                self._warn(
+                    sample.timestamp, "imu_gap", f"{gap:.3f} s without IMU samples before {sample.timestamp:.6f} s (initialisation integrates across it)"
+                )
             self._imu.append(sample)
             return
+        self._propagate(sample)
+
+    def _propagate(self, sample: ImuSample) -> None:
         warning = self.filter.propagate(sample)
         if warning is not None:
-            self.warnings.append(warning.message)
+            self._warn(warning.timestamp, warning.kind, warning.message)
 
     def _observe_range(self, sample: RangeSample) -> None:
         if self._ground_height_m is None:
@@ -179,7 +240,8 @@ class NavigationStage:
         geodetic = (fix.latitude_deg, fix.longitude_deg, fix.altitude_m)
         if not all(math.isfinite(v) for v in (fix.timestamp, *geodetic)):
             if self._gps_locked:
-                self.warnings.append(f"GPS fix at {fix.timestamp:.3f} s has no lock (NaN or infinite position): GPS not fused until a fix has one")
+                text = f"GPS fix at {fix.timestamp:.3f} s has no lock (NaN or infinite position): GPS not fused until a fix has one"
+                self._warn(fix.timestamp, "gps_no_lock", text)
             self._gps_locked = False
             return
         self._gps_locked = True
@@ -208,21 +270,29 @@ class NavigationStage:
     def _try_alignment(self, fix: GpsFix) -> None:
         """Turn the filter's world to ENU once the paired fixes spread enough to give the heading."""
         local = np.array([p for p, _ in self._gps_pairs])
-        if horizontal_spread(local) < self.settings.gps_align_min_spread_m:
+        spread = horizontal_spread(local)
+        self.alignment_progress = AlignmentProgress(len(local), spread, self.settings.gps_align_min_spread_m)
+        if spread < self.settings.gps_align_min_spread_m:
             return
         accuracy = fix.horizontal_accuracy_m
         sigma = accuracy if math.isfinite(accuracy) and accuracy > 0 else self.settings.gps_default_sigma_m
-        alignment = align_to_gps(local, np.array([e for _, e in self._gps_pairs]), sigma)
+        enu = np.array([e for _, e in self._gps_pairs])
+        alignment = align_to_gps(local, enu, sigma)
+        residual = float(np.sqrt(np.mean(np.sum(((local @ alignment.R.T + alignment.t) - enu)[:, :2] ** 2, axis=1))))
+        self.alignment_progress = replace(self.alignment_progress, model=ALIGNMENT_MODEL, residual_m=residual)
+        self.world_changes += 1
         self.filter.move_world(alignment.R, alignment.t, alignment.pivot, alignment.translation_sigma_m, alignment.yaw_sigma_rad)
         if self._ground_height_m is not None:
             self._ground_height_m += float(alignment.t[2])
         self._last_fix_position = alignment.R @ self._last_fix_position + alignment.t
         self.world_alignment, self._gps_pairs = alignment, []
         self.status += f"; georeferenced at {fix.timestamp:.3f} s (heading from {alignment.spread_m:.0f} m of GPS track)"
+        text = f"georeferenced: {ALIGNMENT_MODEL} fitted to {len(local)} fixes over {spread:.0f} m, RMS residual {residual:.2f} m"
+        self.notices.append(Notice(fix.timestamp, "info", "georeferenced", text))
 
     def _tell_monitor_events(self, first: int) -> None:
         for event in self.gps_monitor.events[first:]:
-            self.warnings.append(f"GPS at {event.timestamp:.3f} s: {event.message}")
+            self._warn(event.timestamp, event.kind, f"GPS at {event.timestamp:.3f} s: {event.message}")
 
     def _observe_wheels(self, record: WheelOdometry) -> None:
         """Before the start: kept for :func:`initialise_from_wheels`; then the forward speed with
@@ -259,16 +329,72 @@ class NavigationStage:
         visual = self._update(VisualPose(estimate.timestamp, estimate.T_world_cam, self.T_body_cam)) if tracked else None
         output = self.filter.output(self.T_body_cam)
         self.records.append(NavigationRecord(output, visual))
-        return replace(
-            estimate,
-            T_world_cam=output.T_world_cam,
-            covariance=output.covariance,
-            metric=True,
-            scale_known=output.scale_known,
-            georeferenced=output.georeferenced,
-            gps_trusted=self.gps_trusted,
-            T_visual_cam=estimate.T_world_cam,
-        )
+        self.last_tracking_state = estimate.tracking_state
+        return replace(estimate, T_world_cam=output.T_world_cam, T_visual_cam=estimate.T_world_cam, **self._fused_fields(output))
+
+    def _fused_fields(self, output: NavigationOutput) -> dict:
+        """What a fused estimate takes from the filter besides its pose."""
+        return {
+            "covariance": output.covariance,
+            "metric": True,
+            "scale_known": output.scale_known,
+            "georeferenced": output.georeferenced,
+            "gps_trusted": self.gps_trusted,
+            "velocity": output.velocity,
+            "velocity_covariance": self.filter.covariance[VELOCITY, VELOCITY].copy(),
+        }
+
+    def predict(self, timestamp: float, pending: Sequence = ()) -> PoseEstimate | None:
+        """The filter's answer for a frame at ``timestamp`` that vision has not seen (yet): its
+        newest state carried through the IMU samples among the ``pending`` telemetry (records the
+        stage has not been given: live, the filter waits for vision, PX4's delayed horizon) and
+        on to ``timestamp`` at its velocity for at most ``predict_max_s``; None before the filter
+        starts. The covariance is the filter's own, at its newest state."""
+        if self.filter is None:
+            return None
+        output = self.filter.output(self.T_body_cam)
+        state = self._carried_ahead([r for r in pending if isinstance(r, ImuSample)])
+        T_world_body = np.eye(4)
+        T_world_body[:3, :3], T_world_body[:3, 3] = state.R_world_body, state.position
+        T_world_cam = T_world_body @ self.T_body_cam
+        T_world_cam[:3, 3] += state.velocity * min(max(0.0, timestamp - state.timestamp), self.settings.predict_max_s)
+        quality = position_quality(output.covariance, self.settings.quality_zero_sigma_m)
+        fields = {**self._fused_fields(output), "velocity": state.velocity.copy()}
+        return PoseEstimate(timestamp, T_world_cam, self.last_tracking_state, quality=quality, **fields)
+
+    def _carried_ahead(self, imu_ahead: list[ImuSample]) -> NavState:
+        """The filter's newest state carried through ``imu_ahead``; each sample is integrated
+        once while the filter's state stays the same (answers come at 30 Hz, the samples at
+        200 Hz: redoing the whole held second for each answer would cost 30 times as much)."""
+        newest = self.filter.state
+        start = None
+        if self._ahead is not None and self._ahead[0] is newest:
+            _, state, last = self._ahead
+            start = (state, last)
+            imu_ahead = [s for s in imu_ahead if s.timestamp > last.timestamp]
+        state, last = self.filter.predicted(imu_ahead, start)
+        if last is not None:
+            self._ahead = (newest, state, last)
+        return state
+
+    def geodetic(self, position: np.ndarray) -> tuple[float, float, float] | None:
+        """Latitude, longitude (degrees) and altitude (m, WGS-84) of a world position once the
+        world is ENU at the take-off point; None before."""
+        if self.world_alignment is None or self.enu_frame is None:
+            return None
+        lat, lon, alt = self.enu_frame.to_geodetic(np.asarray(position, float))[0]
+        return float(lat), float(lon), float(alt)
+
+    @property
+    def gps_state(self) -> str:
+        """GPS as the filter uses it: ``off`` (no fix with a lock yet, or ``use_gps`` false),
+        ``aligning`` (pairing fixes for the heading fit), then the monitor's ``trusted`` /
+        ``untrusted`` (spoofing suspected) / ``unavailable`` (jamming, outage)."""
+        if self.enu_frame is None:
+            return "off"
+        if self.world_alignment is None:
+            return "aligning"
+        return self.gps_monitor.trust.value
 
     @property
     def gps_trusted(self) -> bool:
@@ -349,11 +475,11 @@ class NavigationStage:
         self.filter = NavigationFilter(state, self.settings, self._start_covariance(camera_position, alignment.scale_sigma))
         self.alignment, self.initialised_at = alignment, t
         self.status = f"initialised at {t:.3f} s from {source}: scale {alignment.scale:.4g} m per map unit"
+        self.world_changes += 1
+        self.notices.append(Notice(t, "info", "navigation_started", f"navigation filter {self.status}"))
         start = next((i for i in range(len(self._imu) - 1, -1, -1) if self._imu[i].timestamp <= t), 0)
         for sample in self._imu[start:]:
-            warning = self.filter.propagate(sample)
-            if warning is not None:
-                self.warnings.append(warning.message)
+            self._propagate(sample)
         start_wheel = next((i for i, w in enumerate(self._wheel) if w.timestamp > t), len(self._wheel))
         for record in self._wheel[start_wheel:]:
             self._observe_wheels(record)

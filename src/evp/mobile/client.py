@@ -1,8 +1,11 @@
 """``evp stream``: a mobile station in Python (companion computers, tests, benchmarks).
 
-Paced at the recorded rate (``realtime``) the station drops what it cannot keep up with, as it
-would for a phone. As fast as possible, at most ``max_in_flight`` frames are unanswered at a
-time, so the station estimates every frame and the trajectory equals ``evp run``'s.
+Paced at the recorded rate (``realtime``), as a phone, each frame is answered at once with the
+station's current estimate (``answers: at_once``) and vision takes the newest frame it can. As
+fast as possible, at most ``max_in_flight`` frames are unanswered at a time and each is answered
+after the estimator (``answers: after_vision``), so the station estimates every frame and the
+trajectory equals ``evp run``'s. A dataset with an IMU and its camera extrinsic sends the
+extrinsic, so the station fuses the telemetry as ``evp run`` does.
 """
 
 from __future__ import annotations
@@ -165,7 +168,11 @@ class StreamClient:
             self.report.session_id = welcome.session_id
             self._first_seq = welcome.next_seq  # a resumed session continues its numbering
             receiver = asyncio.create_task(self._receive(connection))
-            await connection.send(encode(Config(camera=source.camera, fps=source.fps, encoding=encoding, color_space="bgr")))
+            extrinsic = None if source.T_body_cam is None else [float(v) for v in np.asarray(source.T_body_cam).reshape(-1)]
+            answers = "at_once" if realtime else "after_vision"  # as fast as possible: every frame estimated, as evp run
+            await connection.send(
+                encode(Config(camera=source.camera, fps=source.fps, encoding=encoding, color_space="bgr", T_body_cam=extrinsic, answers=answers))
+            )
             try:
                 await asyncio.wait_for(self._ready.wait(), READY_TIMEOUT_S)
             except TimeoutError:

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
+import numpy as np
 
 from evp.errors import CalibrationError, DataError, DatasetError
 from evp.io.dataset import TelemetryRecord
@@ -27,6 +28,7 @@ class StreamSource:
     live: bool  # frames arrive in real time (camera, URL): no pacing needed
     lossless: bool  # the frames are exact (image files): stream them losslessly by default
     skipped: list[DatasetError]  # undecodable frames, skipped and reported at the end
+    T_body_cam: np.ndarray | None = None  # the camera in the IMU frame, when the source calibrates it (the station then fuses the IMU)
 
 
 def _camera_model(spec: str | None, width: int, height: int) -> CameraModel:
@@ -102,12 +104,11 @@ def open_source(spec: str, camera_spec: str | None = None, max_frames: int | Non
     errors: list[DatasetError] = []
     fps = 30.0
     if dataset.num_frames > 1:
-        import numpy as np
-
         fps = float(1.0 / np.median(np.diff(dataset.frame_times)))
     lossless = dataset.format != "video"
     # ``errors`` fills as frames are read: undecodable ones are skipped and reported
-    return StreamSource(dataset.name, camera, fps, _dataset_items(dataset, max_frames, errors), live=False, lossless=lossless, skipped=errors)
+    items = _dataset_items(dataset, max_frames, errors)
+    return StreamSource(dataset.name, camera, fps, items, live=False, lossless=lossless, skipped=errors, T_body_cam=dataset.T_body_cam)
 
 
 def telemetry_message(record: TelemetryRecord):

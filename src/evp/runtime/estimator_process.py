@@ -8,7 +8,9 @@ loop or another session.
 
 The process speaks a small protocol over its pipe: ``("ready", None)`` once it can take frames,
 ``("pose", payload)`` or ``("error", payload)`` for each message it was sent, ``("finished",
-None)`` after the ``None`` that ends the stream.
+None)`` after the ``None`` that ends the stream, and any other ``(kind, payload)`` as a report
+(``on_report``). Side messages (:meth:`EstimatorProcess.send_side`: telemetry) go at once, never
+wait and are never dropped: the process reads its pipe all the time.
 """
 
 from __future__ import annotations
@@ -30,13 +32,18 @@ class ProcessEvents:
     on_error: Callable[..., None]  # called with the error payload's items
     on_dropped: Callable[[Any], None]  # a message never sent to the process
     on_exit: Callable[[str], None]  # the process ended without being asked to
+    on_report: Callable[[str, Any], None] = lambda kind, payload: None  # anything else the process says
 
 
 class EstimatorProcess:
     """Async handle on one estimator process; create it on the event loop that gets the events."""
 
-    def __init__(self, target: Callable[..., None], args: tuple, events: ProcessEvents, name: str = "evp-estimator"):
+    def __init__(self, target: Callable[..., None], args: tuple, events: ProcessEvents, name: str = "evp-estimator", every_message: bool = False):
+        """``every_message``: once the process is ready, every message goes to it at once (a
+        process that answers each message itself at once, keeping its own newest-first slot);
+        before that the newest one waits, as always."""
         self._events = events
+        self._every_message = every_message
         self._loop = asyncio.get_running_loop()
         # spawn, not fork: the station runs an event loop and threads a forked child would inherit
         context = multiprocessing.get_context("spawn")
@@ -57,12 +64,17 @@ class EstimatorProcess:
         if self._closing:
             self._events.on_dropped(message)
             return
-        if self.ready and not self._busy:
+        if self.ready and (self._every_message or not self._busy):
             self._send(message)
             return
         if self._pending is not None:
             self._events.on_dropped(self._pending)
         self._pending = message
+
+    def send_side(self, message: Any) -> None:
+        """A message outside the frame policy (telemetry): sent now, in order with the frames sent."""
+        if not self._closing:
+            self._connection.send(message)
 
     def _send(self, message: Any) -> None:
         self._busy = True
@@ -88,6 +100,8 @@ class EstimatorProcess:
             self._events.on_pose(payload)
         elif kind == "error":
             self._events.on_error(*payload)
+        else:
+            self._events.on_report(kind, payload)
         if kind in ("pose", "error"):
             self._busy = False
         if self.ready and not self._busy and self._pending is not None:

@@ -10,14 +10,17 @@ import hmac
 import json
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from evp import __version__
 from evp.config import Settings
-from evp.station.estimation import pose_matrix
-from evp.station.protocol import PROTOCOL_VERSION, Config, Hello, Pose, ProtocolError
+from evp.station.protocol import PROTOCOL_VERSION, Config, GpsTelemetry, Hello, Pose, ProtocolError
 from evp.station.recording import has_summary, repair
 from evp.station.session import LiveSession
 from evp.station.store import SessionStore
+
+if TYPE_CHECKING:
+    from evp.station.mavlink_routes import MavlinkRoutes
 from evp.types import CameraModel
 
 
@@ -39,9 +42,8 @@ class Station:
         self.sessions: dict[str, LiveSession] = {}
         self.operators: set[asyncio.Queue] = set()
         self.link: dict = {}
-        self.mavlink = None
+        self.mavlink: MavlinkRoutes | None = None
         self.mavlink_url = mavlink_url
-        self._mavlink_session: str | None = None
         self._generations: dict[str, int] = {}
         self._status_task: asyncio.Task | None = None
 
@@ -59,10 +61,15 @@ class Station:
             if path.is_file() and not has_summary(path):
                 kept = await asyncio.to_thread(repair, path)
                 self.store.log_event(row["id"], "warning", "recording_repaired", f"{path.name}: closed after an abrupt stop ({kept} messages kept)")
-        if self.mavlink_url:
-            from evp.station.mavlink_out import MavlinkOutput
+        if self.mavlink_url or self.settings.mavlink.vehicles:
+            from evp.station.mavlink_routes import MavlinkRoutes
 
-            self.mavlink = MavlinkOutput(self.mavlink_url, self.settings.mavlink)
+            loop = asyncio.get_running_loop()
+
+            def problem(session_id: str, text: str) -> None:  # from an output's thread
+                loop.call_soon_threadsafe(self._mavlink_problem, session_id, text)
+
+            self.mavlink = MavlinkRoutes(self.mavlink_url, self.settings.mavlink, problem)
         self._status_task = asyncio.get_running_loop().create_task(self._status_loop())
         self.store.log_event(None, "info", "started", f"station {__version__} started, data in {self.data_dir}")
 
@@ -112,6 +119,8 @@ class Station:
     async def end_session(self, session: LiveSession) -> None:
         await session.close("ended")
         self.sessions.pop(session.id, None)
+        if self.mavlink is not None:
+            self.mavlink.release(session.id)
         self.broadcast({"type": "sessions"})
 
     def config_for_mobile(self) -> Config:
@@ -153,14 +162,27 @@ class Station:
 
     def on_pose(self, session: LiveSession, pose: Pose, latency_ms: float) -> None:
         self.broadcast({"type": "pose", "session_id": session.id, "pose": pose.model_dump(), "latency_ms": latency_ms})
-        # the flight controller follows one vehicle: the first session with poses, until it is gone
-        if self.mavlink is not None and (self._mavlink_session == session.id or self._mavlink_session not in self.sessions):
-            self._mavlink_session = session.id
-            generation = self._generations.get(session.id, 0)
-            self.mavlink.update(pose_matrix(pose), pose.timestamp, pose.state, pose.quality, generation + pose.reset_counter)
+        output = self.mavlink.output(session.id, session.device) if self.mavlink is not None else None
+        if output is not None:  # each vehicle's own flight controller (mavlink_routes)
+            output.update(pose, self._generations.get(session.id, 0) + pose.reset_counter)
+
+    def _mavlink_problem(self, session_id: str, text: str) -> None:
+        session = self.sessions.get(session_id)
+        if session is not None:
+            session.event("warning", "mavlink_down", text)
+
+    def on_gps(self, session: LiveSession, fix: GpsTelemetry) -> None:
+        self.broadcast(
+            {"type": "gps", "session_id": session.id, "fix": {"timestamp": fix.timestamp, "latitude_deg": fix.latitude_deg, "longitude_deg": fix.longitude_deg}}
+        )
+
+    def on_navigation(self, session: LiveSession, state: dict) -> None:
+        self.broadcast({"type": "navigation", "session_id": session.id, "navigation": state})
 
     def on_event(self, session: LiveSession | None, event: dict) -> None:
         self.broadcast({"type": "event", "event": event})
+        if session is not None and self.mavlink is not None:
+            self.mavlink.alarm(session.id, session.device or session.id, event["code"], event["text"])
 
     def on_status(self, session: LiveSession) -> None:
         self.broadcast({"type": "status", "session_id": session.id, "status": session.status().model_dump(), "connected": session.connected})
@@ -205,6 +227,8 @@ class Station:
         A later resume reopens it from disk with a new map."""
         self.sessions.pop(session.id, None)
         await session.close("interrupted")
+        if self.mavlink is not None:
+            self.mavlink.release(session.id)
         window = self.settings.station.resume_window_s
         session.event("info", "released", f"not resumed within {window:g} s: estimator stopped, recording closed")
         self.broadcast({"type": "sessions"})

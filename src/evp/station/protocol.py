@@ -86,6 +86,13 @@ class Config(_Message):
     encoding: Literal["jpeg", "png", "raw"] | None = None
     jpeg_quality: int | None = Field(None, ge=1, le=100)
     orb: OrbSettings | None = None
+    T_body_cam: Annotated[list[Finite], Field(min_length=16, max_length=16)] | None = Field(
+        None, description="the camera in the IMU's frame, 4x4 row-major (metres): with it the station fuses the IMU (and GPS, barometer, range)"
+    )
+    answers: Literal["at_once", "after_vision"] | None = Field(
+        None,
+        description="at_once (default): every frame answered as it arrives with the current estimate; after_vision: after the estimator, newest frame only (as evp run)",
+    )
 
     @field_validator("camera")
     @classmethod
@@ -125,12 +132,14 @@ class ImuTelemetry(_Message):
 
 
 class GpsTelemetry(_Message):
+    """A fix; latitude, longitude and altitude ``null`` (or absent) is a receiver without lock."""
+
     type: Literal["telemetry"] = "telemetry"
     kind: Literal["gps"] = "gps"
     timestamp: Finite
-    latitude_deg: Finite = Field(ge=-90, le=90)
-    longitude_deg: Finite = Field(ge=-180, le=180)
-    altitude_m: Finite
+    latitude_deg: Finite | None = Field(None, ge=-90, le=90)
+    longitude_deg: Finite | None = Field(None, ge=-180, le=180)
+    altitude_m: Finite | None = None
     horizontal_accuracy_m: Finite | None = Field(None, ge=0)
     vertical_accuracy_m: Finite | None = Field(None, ge=0)
 
@@ -141,6 +150,15 @@ class BaroTelemetry(_Message):
     timestamp: Finite
     pressure_pa: Finite = Field(gt=0)
     altitude_m: Finite | None = None
+
+
+class RangeTelemetry(_Message):
+    """A downward range finder's distance to the ground (companion computers)."""
+
+    type: Literal["telemetry"] = "telemetry"
+    kind: Literal["range"] = "range"
+    timestamp: Finite
+    distance_m: Finite = Field(gt=0)
 
 
 class WheelTelemetry(_Message):
@@ -159,8 +177,32 @@ class WifiTelemetry(_Message):
     rssi_dbm: dict[Annotated[str, Field(max_length=64)], Finite] = Field(default_factory=dict, max_length=512)
 
 
-TELEMETRY = {"imu": ImuTelemetry, "gps": GpsTelemetry, "baro": BaroTelemetry, "wheel": WheelTelemetry, "wifi": WifiTelemetry}
-Telemetry = ImuTelemetry | GpsTelemetry | BaroTelemetry | WheelTelemetry | WifiTelemetry
+TELEMETRY = {"imu": ImuTelemetry, "gps": GpsTelemetry, "baro": BaroTelemetry, "range": RangeTelemetry, "wheel": WheelTelemetry, "wifi": WifiTelemetry}
+Telemetry = ImuTelemetry | GpsTelemetry | BaroTelemetry | RangeTelemetry | WheelTelemetry | WifiTelemetry
+
+
+def telemetry_record(message: Telemetry):
+    """The pipeline's record for a telemetry message (absent optional numbers become NaN, as the
+    dataset readers give them); a GPS fix without lock has a NaN position."""
+    from evp.types import BaroSample, GpsFix, ImuSample, RangeSample, WheelOdometry, WifiScan
+
+    def value(number: float | None) -> float:
+        return math.nan if number is None else number
+
+    if isinstance(message, ImuTelemetry):
+        return ImuSample(message.timestamp, tuple(message.gyro_rad_s), tuple(message.accel_m_s2))
+    if isinstance(message, GpsTelemetry):
+        m = message
+        return GpsFix(
+            m.timestamp, value(m.latitude_deg), value(m.longitude_deg), value(m.altitude_m), value(m.horizontal_accuracy_m), value(m.vertical_accuracy_m)
+        )
+    if isinstance(message, BaroTelemetry):
+        return BaroSample(message.timestamp, message.pressure_pa, value(message.altitude_m))
+    if isinstance(message, RangeTelemetry):
+        return RangeSample(message.timestamp, message.distance_m)
+    if isinstance(message, WheelTelemetry):
+        return WheelOdometry(message.timestamp, tuple(message.wheel_speeds_m_s), value(message.forward_speed_m_s), value(message.yaw_rate_rad_s))
+    return WifiScan(message.timestamp, dict(message.rssi_dbm))
 
 
 class Pose(_Message):
@@ -176,6 +218,17 @@ class Pose(_Message):
     reset_counter: int = 0
     covariance: list[float] | None = Field(None, description="6x6 row-major over (x, y, z, roll, pitch, yaw), when known")
     processing_ms: float = 0.0
+    metric: bool = Field(False, description="metres, gravity-aligned (z up): the navigation filter's pose; else the estimator's map units")
+    scale_known: bool = False
+    georeferenced: bool = Field(False, description="the world is ENU at the take-off point (the first GPS fix with a lock)")
+    gps_trusted: bool = False
+    gps: Literal["none", "off", "aligning", "trusted", "untrusted", "unavailable"] = Field("none", description="GPS as the filter uses it ('none': no filter)")
+    velocity: list[float] | None = Field(None, description="m/s in the world frame, when metric")
+    velocity_covariance: list[float] | None = Field(None, description="3x3 row-major, (m/s)^2, world frame, when metric")
+    latitude_deg: float | None = None
+    longitude_deg: float | None = None
+    altitude_m: float | None = Field(None, description="WGS-84 ellipsoid height, when georeferenced")
+    visual_age_s: float | None = Field(None, description="the frame's time minus the last frame vision tracked (None: none yet)")
 
 
 class Dropped(_Message):

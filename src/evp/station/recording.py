@@ -32,8 +32,8 @@ from evp.io.ros_messages import (
     gps_to_msg,
     imu_to_msg,
 )
-from evp.station.protocol import RAW_CHANNELS, BaroTelemetry, GpsTelemetry, ImageMessage, ImuTelemetry, Pose
-from evp.types import BaroSample, CameraModel, GpsFix, ImuSample
+from evp.station.protocol import RAW_CHANNELS, BaroTelemetry, GpsTelemetry, ImageMessage, ImuTelemetry, Pose, telemetry_record
+from evp.types import CameraModel
 
 STRING = "std_msgs/msg/String"
 POSE = "geometry_msgs/msg/PoseStamped"
@@ -92,17 +92,13 @@ class SessionRecording:
 
     def telemetry(self, message, raw_text: str, received_at: float) -> None:
         """Typed topic where ROS has a type; every telemetry message also verbatim on /evp/messages."""
+        record = telemetry_record(message)
         if isinstance(message, ImuTelemetry):
-            sample = ImuSample(message.timestamp, tuple(message.gyro_rad_s), tuple(message.accel_m_s2))
-            self._recorder.write("/imu", IMU, imu_to_msg(ROS2, sample), received_at)
+            self._recorder.write("/imu", IMU, imu_to_msg(ROS2, record), received_at)
         elif isinstance(message, GpsTelemetry):
-            nan = float("nan")
-            h, v = message.horizontal_accuracy_m, message.vertical_accuracy_m
-            fix = GpsFix(message.timestamp, message.latitude_deg, message.longitude_deg, message.altitude_m, nan if h is None else h, nan if v is None else v)
-            self._recorder.write("/gps/fix", NAVSAT, gps_to_msg(ROS2, fix), received_at)
+            self._recorder.write("/gps/fix", NAVSAT, gps_to_msg(ROS2, record), received_at)
         elif isinstance(message, BaroTelemetry):
-            sample = BaroSample(message.timestamp, message.pressure_pa)
-            self._recorder.write("/baro", PRESSURE, baro_to_msg(ROS2, sample), received_at)
+            self._recorder.write("/baro", PRESSURE, baro_to_msg(ROS2, record), received_at)
         self.text(raw_text, received_at)
 
     def text(self, raw_text: str, received_at: float) -> None:

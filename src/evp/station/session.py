@@ -18,6 +18,7 @@ from typing import Protocol
 
 import numpy as np
 
+from evp.config import Settings
 from evp.runtime.estimator_process import EstimatorProcess, ProcessEvents
 from evp.station.estimation import worker_main
 from evp.station.protocol import (
@@ -26,6 +27,7 @@ from evp.station.protocol import (
     Dropped,
     Enable,
     Error,
+    GpsTelemetry,
     ImageMessage,
     Log,
     Pose,
@@ -35,6 +37,7 @@ from evp.station.protocol import (
     decode_image,
     decode_text,
     encode,
+    telemetry_record,
 )
 from evp.station.recording import SessionRecording
 from evp.station.store import SessionStore
@@ -44,11 +47,15 @@ from evp.types import CameraModel
 class StationHooks(Protocol):
     """What a session tells the station (operator UI, MAVLink, estimator settings)."""
 
+    settings: Settings
+
     def settings_json(self) -> str: ...
     def on_pose(self, session: LiveSession, pose: Pose, latency_ms: float) -> None: ...
     def on_event(self, session: LiveSession, event: dict) -> None: ...
     def on_status(self, session: LiveSession) -> None: ...
     def on_new_map(self, session: LiveSession) -> None: ...
+    def on_navigation(self, session: LiveSession, state: dict) -> None: ...
+    def on_gps(self, session: LiveSession, fix: GpsTelemetry) -> None: ...
 
 
 @dataclass
@@ -75,6 +82,9 @@ class LiveSession:
         self.station = station
         self.recording = SessionRecording(recording_path)
         self.camera: CameraModel | None = None  # named after the device
+        self.T_body_cam: list[float] | None = None  # the camera in the IMU frame (config), for the navigation stage
+        self.answers = "at_once"
+        self.navigation: dict | None = None  # the navigation stage's last reported state
         self.estimating = estimating
         self.worker: EstimatorProcess | None = None
         self.send: Callable[[str], None] | None = None
@@ -87,6 +97,7 @@ class LiveSession:
         self._last_telemetry_time: dict[str, float] = {}
         self._received_at: dict[int, float] = {}
         self._frames: dict[int, ImageMessage] = {}
+        self._telemetry_batch: list = []  # records for the estimator, sent with the next frame
 
     # --- link ---------------------------------------------------------------------------------
 
@@ -176,14 +187,29 @@ class LiveSession:
         self.recording.telemetry(message, text, now)
         data = message.model_dump(exclude={"type", "kind", "timestamp"})
         self.store.insert("telemetry", session_id=self.id, kind=message.kind, timestamp=message.timestamp, received_at=now, data_json=json.dumps(data))
+        jump = self.station.settings.station.max_clock_jump_s
+        if np.isfinite(last) and message.timestamp - last > jump:
+            self.event(
+                "warning",
+                "clock_jump",
+                f"{message.kind} telemetry jumped {message.timestamp - last:.1f} s ahead (more than {jump:g} s): the sensor's clock was reset?",
+            )
+        if isinstance(message, GpsTelemetry) and message.latitude_deg is not None:
+            self.station.on_gps(self, message)  # the operator's plot: fused track against GPS
+        if self.worker is not None:  # the estimator fuses it (the navigation filter), whether estimating or not
+            self._telemetry_batch.append(telemetry_record(message))
 
     def _config(self, message: Config, now: float) -> None:
         self.store.insert("settings", session_id=self.id, t=now, source="mobile", data_json=encode(message))
-        if message.camera is None:
+        navigation = (message.T_body_cam or self.T_body_cam, message.answers or self.answers)
+        changed = navigation != (self.T_body_cam, self.answers)
+        self.T_body_cam, self.answers = navigation
+        if message.camera is None or replace(message.camera, name=self.device or "mobile") == self.camera:
+            if changed and self.camera is not None:
+                self.event("info", "config", f"IMU extrinsic {'given' if self.T_body_cam else 'none'}, answers {self.answers}")
+                self.restart_estimator()
             return
         camera = replace(message.camera, name=self.device or "mobile")
-        if camera == self.camera:
-            return
         self.recording.camera(camera, now)
         self.camera = camera
         self.store.update_session(self.id, camera_json=json.dumps(asdict(camera)))
@@ -211,7 +237,15 @@ class LiveSession:
             return
         self._received_at[message.seq] = now
         self._frames[message.seq] = message
+        self._send_telemetry()
         self.worker.submit(message)
+
+    def _send_telemetry(self) -> None:
+        """The telemetry since the last frame, in one message: the estimator process's link thread
+        handles 30 messages a second instead of 250 (each one waits for the GIL while SLAM holds it)."""
+        if self._telemetry_batch and self.worker is not None:
+            self.worker.send_side(("telemetry", self._telemetry_batch))
+        self._telemetry_batch = []
 
     def _check_frame(self, message: ImageMessage) -> None:
         if message.seq <= self._last_seq:
@@ -254,8 +288,9 @@ class LiveSession:
             return
         settings_json = self.station.settings_json()
         self.store.insert("settings", session_id=self.id, t=time.time(), source="server", data_json=settings_json)
-        events = ProcessEvents(self._worker_ready, self._worker_pose, self._worker_error, self._worker_dropped, self._worker_exit)
-        self.worker = EstimatorProcess(worker_main, (self.camera, settings_json), events)
+        events = ProcessEvents(self._worker_ready, self._worker_pose, self._worker_error, self._worker_dropped, self._worker_exit, self._worker_report)
+        args = (self.camera, settings_json, self.T_body_cam, self.answers)
+        self.worker = EstimatorProcess(worker_main, args, events, every_message=self.answers == "at_once")
         self.station.on_new_map(self)
         self.reply(Status(state="starting", estimating=self.estimating, message="estimator starting"))
 
@@ -289,6 +324,16 @@ class LiveSession:
             state=pose.state, quality=pose.quality, reset_counter=pose.reset_counter, processing_ms=pose.processing_ms, latency_ms=latency_ms,
         )  # fmt: skip
         self.station.on_pose(self, pose, latency_ms)
+
+    def _worker_report(self, kind: str, payload) -> None:
+        """The navigation stage's notices become events (GPS alarms, IMU problems), its state goes
+        to the operators."""
+        if kind == "notice":
+            level, code, text = payload
+            self.event(level, code, text)
+        elif kind == "navigation":
+            self.navigation = payload
+            self.station.on_navigation(self, payload)
 
     def _worker_error(self, code: str, text: str, seq: int | None) -> None:
         if seq is not None and seq in self._frames:
@@ -331,6 +376,7 @@ class LiveSession:
 
     async def close(self, status: str) -> None:
         """Finish the estimator (frames in flight get their poses recorded) and the recording."""
+        self._send_telemetry()
         if self.worker is not None:
             await self.worker.close()
             self.worker = None

@@ -4,24 +4,72 @@
 const $ = id => document.getElementById(id);
 const TOKEN = new URLSearchParams(location.search).get("token") || ""; // needed when the station has --token
 const withToken = url => TOKEN ? url + (url.includes("?") ? "&" : "?") + "token=" + encodeURIComponent(TOKEN) : url;
-const state = { config: null, live: {}, selected: null, trajectories: {} };
+// per session: its poses and GPS fixes (decimated: a 2-hour session draws as fast as a short one),
+// the navigation filter's last state and the GPS alarm in force
+const state = { config: null, live: {}, selected: null, trajectories: {}, gps: {}, navigation: {}, alarms: {} };
 window.evp = state; // for tests and the curious
+const ALARMS = { spoofing_alarm: "GPS SPOOFING SUSPECTED: position from vision", gps_lost: "GPS LOST (jamming or outage): position from vision" };
+const series = (store, id) => (store[id] = store[id] || new DecimatedSeries());
 
-function selectedTrajectory() { return state.trajectories[state.selected] || []; }
+// metres east and north of `origin` ([lat, lon] in degrees): local tangent plane, enough for a plot
+function eastNorth(origin, lat, lon) {
+  const R = 6378137, k = Math.PI / 180;
+  return [(lon - origin[1]) * k * R * Math.cos(origin[0] * k), (lat - origin[0]) * k * R];
+}
 
 function redraw() {
-  const poses = selectedTrajectory().filter(p => p.state === "OK" || p.state === "RELOCALIZED");
+  const poses = series(state.trajectories, state.selected).points;
+  const tracked = poses.filter(p => p.metric || p.state === "OK" || p.state === "RELOCALIZED");
+  const fixes = series(state.gps, state.selected).points;
+  const georeferenced = tracked.filter(p => p.latitude_deg !== null && p.latitude_deg !== undefined);
   const plane = $("plane").value;
-  const top = poses.map(p => plane === "xy" ? [p.t[0], p.t[1]] : [p.t[0], p.t[2]]);
-  const up = poses.map(p => [p.timestamp, plane === "xy" ? -p.t[2] : -p.t[1]]);
-  plotLine($("top-view"), top, plane === "xy" ? ["x", "y"] : ["x", "z"], true);
-  plotLine($("altitude"), up, ["time (s)", plane === "xy" ? "altitude (−z)" : "altitude (−y)"], false);
+  if (georeferenced.length && fixes.length) { // the fused track against GPS, east-north at the first fix
+    const origin = [fixes[0].latitude_deg, fixes[0].longitude_deg];
+    plotLines($("top-view"), [
+      { points: georeferenced.map(p => eastNorth(origin, p.latitude_deg, p.longitude_deg)), color: "#1565c0", label: "fused" },
+      { points: fixes.map(f => eastNorth(origin, f.latitude_deg, f.longitude_deg)), color: "#ef6c00", label: "GPS" },
+    ], ["east (m)", "north (m)"], true);
+  } else {
+    const top = tracked.map(p => plane === "xy" ? [p.t[0], p.t[1]] : [p.t[0], p.t[2]]);
+    plotLine($("top-view"), top, plane === "xy" ? ["x", "y"] : ["x", "z"], true);
+  }
+  const metric = tracked.length && tracked[tracked.length - 1].metric;
+  const up = tracked.map(p => [p.timestamp, metric || plane === "xy" ? (p.metric ? p.t[2] : -p.t[2]) : -p.t[1]]);
+  plotLine($("altitude"), up, ["time (s)", metric ? "altitude (m)" : plane === "xy" ? "altitude (−z)" : "altitude (−y)"], false);
+}
+
+let redrawPending = false;
+function scheduleRedraw() { // at most one redraw per animation frame, however fast the poses come
+  if (redrawPending) return;
+  redrawPending = true;
+  requestAnimationFrame(() => { redrawPending = false; redraw(); });
+}
+
+// The navigation banner: the GPS alarm in force, else the GPS state and the alignment phase.
+function updateBanner() {
+  const banner = $("nav-banner"), id = state.selected;
+  const nav = state.navigation[id], alarm = state.alarms[id];
+  const poses = series(state.trajectories, id).points;
+  const last = poses[poses.length - 1];
+  const gps = (last && last.gps) || (nav && nav.gps) || "none";
+  banner.dataset.gps = gps;
+  banner.className = alarm ? "banner alarm" : gps === "trusted" ? "banner ok" : "banner";
+  if (alarm) { banner.textContent = alarm; return; }
+  const parts = [];
+  if (nav) parts.push(nav.running ? "navigation filter running" : "navigation: " + nav.status);
+  else if (last) parts.push(last.metric ? "navigation filter running" : "no navigation filter (no IMU extrinsic)");
+  const a = nav && nav.alignment;
+  if (gps === "aligning" && a) parts.push(`GPS alignment: ${a.pairs} fixes, spread ${a.spread_m.toFixed(1)} of ${a.needed_m.toFixed(0)} m`);
+  else if (gps !== "none") parts.push("GPS " + gps + (a && a.model ? ` (${a.model}, residual ${a.residual_m.toFixed(2)} m)` : ""));
+  if (last && last.visual_age_s !== null && last.visual_age_s !== undefined) parts.push(`vision ${(last.visual_age_s * 1000).toFixed(0)} ms ago`);
+  banner.textContent = parts.join(" · ") || "no navigation yet";
 }
 
 function showPose(pose) {
   const f = v => v.toFixed(3);
+  const where = pose.latitude_deg !== null && pose.latitude_deg !== undefined ? `  ${pose.latitude_deg.toFixed(7)}, ${pose.longitude_deg.toFixed(7)}, ${pose.altitude_m.toFixed(1)} m` : "";
   $("pose").textContent = `seq ${pose.seq}  t=${pose.timestamp.toFixed(3)} s  ${pose.state}  quality ${pose.quality}  ` +
-    `t=(${pose.t.map(f).join(", ")})  q(w,x,y,z)=(${pose.q.map(f).join(", ")})`;
+    `${pose.metric ? "metric" : "map units"}  t=(${pose.t.map(f).join(", ")})  q(w,x,y,z)=(${pose.q.map(f).join(", ")})${where}`;
 }
 
 function addEvent(e) {
@@ -93,13 +141,22 @@ function onMessage(message) {
       break;
     }
     case "pose": {
-      const list = state.trajectories[message.session_id] = state.trajectories[message.session_id] || [];
-      list.push(message.pose);
+      series(state.trajectories, message.session_id).push(message.pose);
       if (!state.live[message.session_id]) { state.live[message.session_id] = { connected: true }; refreshSelect(); }
-      if (message.session_id === state.selected) { showPose(message.pose); redraw(); }
+      if (message.session_id === state.selected) { showPose(message.pose); updateBanner(); scheduleRedraw(); }
       break;
     }
-    case "event": addEvent(message.event); if (["connected", "ended", "interrupted", "resumed"].includes(message.event.code)) loadSessions(); break;
+    case "gps": series(state.gps, message.session_id).push(message.fix); break;
+    case "navigation": state.navigation[message.session_id] = message.navigation; updateBanner(); break;
+    case "event": {
+      const e = message.event;
+      addEvent(e);
+      if (ALARMS[e.code]) state.alarms[e.session_id] = ALARMS[e.code];
+      if (["gps_back", "trust_restored", "georeferenced"].includes(e.code)) delete state.alarms[e.session_id];
+      if (e.session_id === state.selected) updateBanner();
+      if (["connected", "ended", "interrupted", "resumed"].includes(e.code)) loadSessions();
+      break;
+    }
     case "status":
       state.live[message.session_id] = Object.assign(state.live[message.session_id] || {}, { status: message.status, connected: message.connected });
       if (!$("session-select").querySelector(`option[value="${message.session_id}"]`)) refreshSelect(); else updateStatusBar();
@@ -120,7 +177,7 @@ async function command(action) {
   if (!state.selected) return;
   const response = await fetch(withToken(`/api/sessions/${state.selected}/${action}`), { method: "POST" });
   if (!response.ok) addEvent({ t: Date.now() / 1000, level: "error", code: action, text: (await response.json()).error, session_id: state.selected });
-  if (action === "start") state.trajectories[state.selected] = [];
+  if (action === "start") state.trajectories[state.selected] = new DecimatedSeries();
 }
 
 async function configure() {
@@ -141,6 +198,6 @@ $("start").onclick = () => command("start");
 $("stop").onclick = () => command("stop");
 $("resume").onclick = () => command("resume");
 $("plane").onchange = redraw;
-$("session-select").onchange = event => { state.selected = event.target.value; updateStatusBar(); redraw(); };
+$("session-select").onchange = event => { state.selected = event.target.value; updateStatusBar(); updateBanner(); redraw(); };
 redraw();
 connect();

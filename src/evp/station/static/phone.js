@@ -54,7 +54,8 @@ function announce() {
   const track = phone.stream.getVideoTracks()[0].getSettings();
   if (Math.abs(track.width / track.height - c.camera.width / c.camera.height) > 0.01)
     log(`camera gives ${track.width}x${track.height}: stretched to ${c.camera.width}x${c.camera.height}, calibrate at that aspect`);
-  send({ type: "config", camera: c.camera, fps: c.fps, encoding: c.encoding === "png" ? "png" : "jpeg", color_space: "bgr" });
+  send({ type: "config", camera: c.camera, fps: c.fps, encoding: c.encoding === "png" ? "png" : "jpeg", color_space: "bgr",
+         T_body_cam: cameraExtrinsic(), answers: "at_once" });
   clearInterval(phone.timer);
   phone.timer = setInterval(captureFrame, 1000 / c.fps);
 }
@@ -84,6 +85,16 @@ function captureFrame() {
     phone.socket.send(frame.buffer);
     phone.sent++; $("sent").textContent = phone.sent;
   }, "image/" + encoding, (c.jpeg_quality || 85) / 100);
+}
+
+// The back camera in the phone's IMU axes (W3C device axes: x right, y to the top of the screen,
+// z out of the screen; the camera looks along -z), for the screen's orientation (the image's
+// right and down edges turn with it). The lenses sit a few cm from the IMU: taken as 0.
+function cameraExtrinsic() {
+  const angle = (screen.orientation && screen.orientation.angle) || 0;
+  const [right, down] = { 90: [[0, -1, 0], [-1, 0, 0]], 180: [[-1, 0, 0], [0, 1, 0]], 270: [[0, 1, 0], [1, 0, 0]] }[angle] || [[1, 0, 0], [0, -1, 0]];
+  const forward = [0, 0, -1];
+  return [0, 1, 2].flatMap(i => [right[i], down[i], forward[i], 0]).concat([0, 0, 0, 1]);
 }
 
 function startSensors() {

@@ -29,7 +29,7 @@ from evp.markers.marker_map import Localisation, MapEvent, MarkerMap
 GRAVITY_M_S2 = 9.80665
 
 
-class State(str, enum.Enum):
+class State(enum.StrEnum):
     GROUND = "ground"
     LIFT_OFF = "lift_off"
     EXPLORATION = "exploration"

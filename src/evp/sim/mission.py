@@ -19,6 +19,7 @@ import numpy as np
 
 from evp.autopilot.pilot import Autopilot, Command, OperatorCommand, State
 from evp.config import AutopilotSettings, MarkerSettings
+from evp.errors import UsageError
 from evp.markers.detection import MarkerDetector
 from evp.markers.marker_map import MarkerMap
 from evp.sim.quadrotor import Quadrotor, QuadrotorConfig
@@ -145,10 +146,9 @@ def fly(
     """Fly one mission; ``clock`` times the autopilot's work per frame."""
     autopilot_settings = autopilot_settings or AutopilotSettings()
     marker_settings = marker_settings or MarkerSettings()
-    if spec.target is not None and not 0 <= spec.target < MARKER_COLS * MARKER_ROWS:
-        from evp.errors import UsageError
-
-        raise UsageError(f"--target {spec.target}: the field's markers are 0-{MARKER_COLS * MARKER_ROWS - 1}")
+    for name, marker in (("target", spec.target), ("start", spec.start_marker)):
+        if marker is not None and not 0 <= marker < MARKER_COLS * MARKER_ROWS:
+            raise UsageError(f"--{name} {marker}: the field's markers are 0-{MARKER_COLS * MARKER_ROWS - 1}")
     rng = np.random.default_rng(spec.seed)
     centres = marker_world_centres()
     scene = build_scenario("marker-field", SimOptions(duration_s=1.0)).scene

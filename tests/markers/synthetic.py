@@ -4,9 +4,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from evp.markers.detection import MarkerObservation
+from evp.markers.floor import UNIT_CORNERS
 from evp.sim.scenarios import DOWNWARD
 
 PITCH = 0.196
+SIZE = 0.098
 
 
 def grid_positions(cols: int = 5, rows: int = 5) -> dict[int, np.ndarray]:
@@ -22,5 +24,6 @@ def observe(camera_xy, height: float, markers: dict[int, np.ndarray], yaw: float
         if np.linalg.norm(np.asarray(xy) - camera_xy) > reach:
             continue
         t = R_world_cam.T @ (np.array([xy[0], xy[1], 0.0]) - centre)
-        seen.append(MarkerObservation(marker_id, np.zeros((4, 2)), R_world_cam.T.copy(), t))
+        corners = (np.column_stack([UNIT_CORNERS * SIZE, np.zeros(4)]) @ R_world_cam) + t  # marker axes = world axes
+        seen.append(MarkerObservation(marker_id, np.zeros((4, 2)), R_world_cam.T.copy(), t, corners[:, :2] / corners[:, 2:3]))
     return seen

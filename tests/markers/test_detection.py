@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 from evp.config import MarkerSettings
 from evp.errors import FrameError
 from evp.markers.detection import MarkerDetector, marker_yaw
+from evp.markers.floor import camera_over_floor, camera_pose_2d
 from evp.sim.mission import marker_world_centres, mission_camera
 from evp.sim.scenarios import DOWNWARD, SimOptions, build_scenario
 from evp.sim.world import Renderer
@@ -19,7 +20,14 @@ from evp.types import CameraModel
 from tests.conftest import shared
 
 # the rotation series' 70-degree tag in clutter needs the finer threshold windows (config.py)
-REAL = MarkerSettings(dictionary="DICT_APRILTAG_36h11", marker_size_m=0.065, threshold_window_step_px=4)
+REAL = MarkerSettings(
+    dictionary="DICT_APRILTAG_36h11",
+    marker_size_m=0.065,
+    threshold_window_min_px=3,
+    threshold_window_max_px=23,
+    threshold_window_step_px=4,
+    fast_detection=False,
+)
 MULTIPLE_IDS = {22, 24, 58, 85, 144, 198}
 
 
@@ -64,11 +72,16 @@ def test_the_rendered_floor_decodes_as_the_ids_placed_there_with_their_poses():
     T[:3, 3] = position
     found = MarkerDetector(camera, MarkerSettings()).detect(renderer.render(T))
     assert {49, 40, 58} <= {o.marker_id for o in found}
-    for o in found:
-        # one 50-pixel marker seen face on: its tilt is the weak part of a square's pose (~2 deg, 1.5 cm here)
+    for o in found:  # one 50-pixel square seen face on: its tilt is the weak part of its pose (a degree or two)
         assert np.linalg.norm(o.camera_in_marker()[:2] - (position[:2] - centres[o.marker_id])) < 0.03
-        assert o.camera_in_marker()[2] == pytest.approx(0.45 - 0.001, abs=0.01)
+        assert o.camera_in_marker()[2] == pytest.approx(0.45 - 0.001, abs=0.03)
         assert marker_yaw(o) == pytest.approx(0.3 - np.pi / 2, abs=0.02)
+    # every marker's corners at once (the map's way): the camera to millimetres (320x240 here)
+    floor = {i: np.array([*(centres[i] - centres[49]), 0.0]) for i in centres}
+    R, t = camera_over_floor(found, floor, 0.098)
+    pose, height = camera_pose_2d(R, t)
+    np.testing.assert_allclose(pose[:2], position[:2] - centres[49], atol=0.008)
+    assert height == pytest.approx(0.449, abs=0.004) and pose[2] == pytest.approx(0.3, abs=0.01)
 
 
 def test_a_frame_of_the_wrong_size_is_refused():

@@ -25,8 +25,12 @@ from evp.autopilot.exploration import close_passed, frontier, nearest
 from evp.config import AutopilotSettings, MarkerSettings
 from evp.markers.detection import MarkerObservation
 from evp.markers.marker_map import Localisation, MapEvent, MarkerMap
+from evp.markers.planar import camera_over_marker
 
 GRAVITY_M_S2 = 9.80665
+# the trims take up a steady drift: they learn only in steady flight (not while a manoeuvre or a
+# manual push leaves the velocity far from its set-point, which would wind them up the wrong way)
+TRIM_MAX_ERROR_M_S = 0.15
 
 
 class State(enum.StrEnum):
@@ -88,7 +92,7 @@ class Autopilot:
     _hover_until: float | None = None
     _closed: set = field(default_factory=set)
     _frontier: dict = field(default_factory=dict)
-    _frontier_size: tuple = (-1, -1)
+    _frontier_size: tuple = ()
     _trim: np.ndarray = field(default_factory=lambda: np.zeros(2))
     _tilt_map: np.ndarray = field(default_factory=lambda: np.zeros(2))
     _last_frame_s: float | None = None
@@ -172,7 +176,7 @@ class Autopilot:
             localisation = self.marker_map.update(time_s, observations)
             if len(self.marker_map) > size:
                 self._last_new_marker_s = time_s
-            self._track(time_s, localisation, dt)
+            self._track(time_s, observations, localisation, dt)
         self._update_height(time_s, range_m, localisation)
         if self.state == State.GROUND:
             self._set_state(State.LIFT_OFF, "start")
@@ -185,33 +189,60 @@ class Autopilot:
         velocity = self._velocity_setpoint(time_s)
         return Command(time_s, self.state, velocity, self._tilt(velocity, dt, localisation is not None), self._climb(), True)
 
-    def _track(self, time_s: float, localisation: Localisation | None, dt: float) -> None:
-        """Position from the map; velocity from the markers seen in this frame and the last."""
-        if localisation is None:  # no marker: the velocity carried by the tilt commanded and the drag
-            self._last_markers = {}
-            if self.state not in (State.GROUND, State.LANDED):
-                acceleration = GRAVITY_M_S2 * np.tan(self._tilt_map) - self.settings.drag_per_s * self.velocity
-                self.velocity = self.velocity + acceleration * dt
-                if self.position is not None:
-                    self.position = self.position + np.array([*(self.velocity * dt), 0.0])
-            return
-        self._last_marker_s = time_s
-        self.position = localisation.pose
-        common = [i for i in localisation.camera_by_marker if i in self._last_markers]
-        if common and dt > 0:
-            moved = np.mean([localisation.camera_by_marker[i] - self._last_markers[i] for i in common], axis=0) / dt
+    def _track(self, time_s: float, observations: list[MarkerObservation], localisation: Localisation | None, dt: float) -> None:
+        """Position from the map (carried forward by the velocity while no mapped marker is seen);
+        velocity from the markers seen in this frame and the last, mapped or not (section 3.2.5),
+        else carried by the tilt commanded and the drag."""
+        if localisation is not None:
+            self.position = localisation.pose
+        moved = self._marker_motion(observations, localisation, dt)
+        if moved is not None:
             alpha = min(1.0, dt / self.settings.velocity_smoothing_s)
             self.velocity = (1 - alpha) * self.velocity + alpha * moved
-        self._last_markers = dict(localisation.camera_by_marker)
+        elif not observations and self.state not in (State.GROUND, State.LANDED):
+            acceleration = GRAVITY_M_S2 * np.tan(self._tilt_map) - self.settings.drag_per_s * self.velocity
+            self.velocity = self.velocity + acceleration * dt
+        if localisation is None and self.position is not None and self.state not in (State.GROUND, State.LANDED):
+            self.position = self.position + np.array([*(self.velocity * dt), 0.0])
+        if observations:
+            self._last_marker_s = time_s
+        if localisation is None:
+            return
         nearest_id = min(localisation.marker_ids, key=lambda i: np.linalg.norm(self.marker_map.poses[i][:2] - self.position[:2]))
         self._last_marker_xy = self.marker_map.poses[nearest_id][:2].copy()
+        if self.state == State.LIFT_OFF or not self._in_band() or self.height_m < 0.8 * self.settings.flight_level_m:
+            return  # below the flight level the view is too small to tell an empty place
         places = self._open_places()
         for key in close_passed(places, self.position[:2], self.settings.close_radius_m):
             self._closed.add(key)
-            self._frontier_size = (-1, -1)
+            self._frontier_size = ()
+
+    def _marker_motion(self, observations: list[MarkerObservation], localisation: Localisation | None, dt: float) -> np.ndarray | None:
+        """Camera velocity (map frame) from the markers seen in both this frame and the last: with
+        the map's joint camera pose when it has one; else from each marker's own pose, the camera's
+        step over the marker turned into the map by Eq. 1's yaw (the median over the markers, as a
+        single small square's pose can flip by centimetres between frames)."""
+        previous, self._last_markers = self._last_markers, {}
+        if not observations:
+            return None
+        if localisation is not None:
+            now = dict(localisation.camera_by_marker)
+        else:
+            yaw = np.pi / 2 if self.position is None else self.position[2]
+            now = {}
+            for o in observations:
+                x, y, phi = camera_over_marker(o)
+                turn = yaw - phi - np.pi / 2  # the marker's heading in the map
+                c, s_ = np.cos(turn), np.sin(turn)
+                now[o.marker_id] = np.array([c * x - s_ * y, s_ * x + c * y])
+        self._last_markers = {("map" if localisation is not None else "own", i): xy for i, xy in now.items()}
+        common = [key for key in self._last_markers if key in previous]
+        if not common or dt <= 0:
+            return None
+        return np.median([self._last_markers[key] - previous[key] for key in common], axis=0) / dt
 
     def _open_places(self) -> dict:
-        size = (len(self.marker_map), len(self._closed))
+        size = (len(self.marker_map), len(self._closed), self.marker_map.pitch_m)
         if size != self._frontier_size:
             self._frontier = frontier(self.marker_map, self._closed)
             self._frontier_size = size
@@ -249,7 +280,7 @@ class Autopilot:
             return
         lost = self._last_marker_s is None or time_s - self._last_marker_s > s.edge_timeout_s
         if self.state == State.EDGE:
-            if localisation is not None:
+            if not lost:
                 self._set_state(self._before_edge, "markers tracked again")
                 self._counter = None
             elif time_s - self._last_marker_s > s.edge_land_after_s:
@@ -283,7 +314,7 @@ class Autopilot:
             reached = self._target_key not in places
             if time_s - self._target_since > s.target_timeout_s and not reached:
                 self._closed.add(self._target_key)
-                self._frontier_size = (-1, -1)
+                self._frontier_size = ()
                 self.log("target_given_up", f"{self._target_key} not reached in {s.target_timeout_s} s")
                 reached = True
             if not reached:
@@ -294,6 +325,8 @@ class Autopilot:
             self._set_state(State.EXPLORATION, "no goal")
         if time_s - self._last_new_marker_s < s.explore_interval_s or self.position is None:
             return
+        if not np.isfinite(self.marker_map.pitch_m):
+            return  # one marker so far: no neighbour direction to explore yet (hold and look)
         choice = nearest(self._open_places(), self.position[:2])
         if choice is not None:  # near enough to see the place is enough: stop short of it, over the map
             key, place = choice
@@ -352,6 +385,8 @@ class Autopilot:
         elif self.state == State.NAVIGATION and self._target is not None:
             target = self._target
         else:
+            if not s.drift_correction:
+                return np.zeros(2)  # uncorrected: nothing holds the place, as in seed 003's drift test
             if self._hold_point is None:
                 self._hold_point = self.position[:2].copy()
             target = self._hold_point
@@ -363,12 +398,13 @@ class Autopilot:
         """Tilt (body frame) from the velocity error; the trims integrate it while markers track."""
         s = self.settings
         if self.state == State.EDGE and self._counter is not None and self._manual is None:
-            along = self._counter * s.counter_steer_tilt_rad + (self._trim if s.drift_correction else 0.0)
+            outward = min(0.0, float(self.velocity @ self._counter))  # brake what is left of the exit velocity
+            along = self._counter * (s.counter_steer_tilt_rad - s.velocity_gain * outward) + (self._trim if s.drift_correction else 0.0)
         elif not s.drift_correction:
             along = velocity * s.velocity_gain
         else:
             error = velocity - self.velocity
-            if tracked and self.state not in (State.LIFT_OFF,):
+            if tracked and self._manual is None and self.state != State.LIFT_OFF and np.linalg.norm(error) < TRIM_MAX_ERROR_M_S:
                 self._trim = _limit(self._trim + s.trim_gain * error * dt, s.max_trim_rad)
             along = s.velocity_gain * error + self._trim
         tilt_map = _limit(along, s.max_tilt_rad)

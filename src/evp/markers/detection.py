@@ -29,6 +29,7 @@ DICTIONARIES = (
     "DICT_APRILTAG_36h11",
 )
 
+GOOD_FIT = 2e-3  # reprojection error (normalised units: about a pixel at fx 500) that needs no second solver
 REFINEMENTS = {
     "none": cv2.aruco.CORNER_REFINE_NONE,
     "subpix": cv2.aruco.CORNER_REFINE_SUBPIX,
@@ -40,13 +41,15 @@ REFINEMENTS = {
 @dataclass(frozen=True)
 class MarkerObservation:
     """One marker in one image. ``corners`` (4, 2) pixels in ArUco order (the marker's top-left,
-    top-right, bottom-right, bottom-left); ``R_cam_marker``/``t_cam_marker`` map marker-frame
+    top-right, bottom-right, bottom-left), ``rays`` the same corners undistorted and normalised;
+    ``R_cam_marker``/``t_cam_marker`` map marker-frame
     points (x right, y up on the marker, z out of it, origin at its centre) into the camera frame."""
 
     marker_id: int
     corners: np.ndarray
     R_cam_marker: np.ndarray
     t_cam_marker: np.ndarray
+    rays: np.ndarray  # (4, 2) the corners undistorted to normalised image coordinates (x / z, y / z)
 
     @property
     def distance_m(self) -> float:
@@ -72,7 +75,10 @@ class MarkerDetector:
             raise UsageError(f"unknown marker dictionary {settings.dictionary!r}; choose one of {', '.join(DICTIONARIES)}")
         parameters = cv2.aruco.DetectorParameters()
         parameters.cornerRefinementMethod = REFINEMENTS[settings.corner_refinement]
+        parameters.adaptiveThreshWinSizeMin = settings.threshold_window_min_px
+        parameters.adaptiveThreshWinSizeMax = max(settings.threshold_window_max_px, settings.threshold_window_min_px)
         parameters.adaptiveThreshWinSizeStep = settings.threshold_window_step_px
+        parameters.useAruco3Detection = settings.fast_detection
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, settings.dictionary))
         self._detector = cv2.aruco.ArucoDetector(dictionary, parameters)
         self.camera = camera
@@ -91,13 +97,36 @@ class MarkerDetector:
         if ids is None:
             return []
         found = []
-        for marker_corners, marker_id in zip(corners, ids.ravel()):
-            pixels = marker_corners.reshape(4, 2).astype(np.float64)
-            ok, rvec, tvec = cv2.solvePnP(self._object_points, pixels, self._K, self._distortion, flags=cv2.SOLVEPNP_IPPE_SQUARE)
-            if not ok:
+        pixels = np.concatenate(corners).reshape(-1, 4, 2).astype(np.float64)
+        rays = cv2.undistortPoints(pixels.reshape(-1, 1, 2), self._K, self._distortion).reshape(-1, 4, 2)
+        for marker_pixels, marker_rays, marker_id in zip(pixels, rays, ids.ravel()):
+            solved = planar_pose(self._object_points, marker_rays, cv2.SOLVEPNP_IPPE_SQUARE)
+            if solved is None:
                 continue
-            found.append(MarkerObservation(int(marker_id), pixels, cv2.Rodrigues(rvec)[0], tvec.ravel()))
+            found.append(MarkerObservation(int(marker_id), marker_pixels, solved[0], solved[1], marker_rays))
         return found
+
+
+def planar_pose(object_points: np.ndarray, rays: np.ndarray, method: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """(R, t) of planar points (z = 0) seen along undistorted rays (K = I): ``method`` (an IPPE
+    variant), and OpenCV's iterative solver when that reprojects worse than ``GOOD_FIT``. IPPE can
+    return a wrong, tilted pose (or none) for a square seen exactly face on, its degenerate case:
+    a camera straight above a floor marker; the iterative solver is right there."""
+    best = None
+    for flags in (method, cv2.SOLVEPNP_ITERATIVE):
+        try:
+            ok, rvec, tvec = cv2.solvePnP(object_points, rays, np.eye(3), None, flags=flags)
+        except cv2.error:  # the iterative solver's planar test can fail on four points (it then wants six)
+            continue
+        if not ok or not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
+            continue
+        projected, _ = cv2.projectPoints(object_points, rvec, tvec, np.eye(3), None)
+        error = float(np.abs(projected.reshape(-1, 2) - rays).max())
+        if best is None or error < best[0]:
+            best = (error, rvec, tvec)
+        if best[0] < GOOD_FIT:
+            break
+    return None if best is None else (cv2.Rodrigues(best[1])[0], best[2].ravel())
 
 
 def marker_yaw(observation: MarkerObservation) -> float:

@@ -6,7 +6,9 @@ yaw-compensated offset (Eq. 1). Each link carries a quality that falls with the 
 (false detections grow with it), and a link of higher quality overwrites one of lower. The grid is
 laid out from the first marker by walking the links. The metric map holds each marker's pose
 (x, y, theta) on the floor in the frame of the first marker mapped; new markers are chained from
-mapped ones in the same frame and the whole map is refined by the pose graph now and then.
+mapped ones in the same frame (where their corners' rays meet the floor, with the camera pose
+solved from every mapped marker's corners at once: ``evp.markers.floor``) and the whole map is
+refined by the pose graph now and then.
 
 Bad input is handled here and logged in ``events``: one id seen twice in a frame, or seen far from
 where the map has it while other markers agree on the camera, is a duplicate and is not used; a new
@@ -23,8 +25,9 @@ import numpy as np
 
 from evp.config import MarkerSettings
 from evp.markers.detection import MarkerObservation, yaw_compensate
+from evp.markers.floor import camera_over_floor, camera_pose_2d, floor_points, marker_pose_from_corners
 from evp.markers.planar import camera_over_marker, compose, inverse
-from evp.markers.pose_graph import refine_poses, relative_pose
+from evp.markers.pose_graph import refine_poses
 
 DIRECTIONS = {"north": (0, 1), "east": (1, 0), "south": (0, -1), "west": (-1, 0)}
 OPPOSITE = {"north": "south", "south": "north", "east": "west", "west": "east"}
@@ -80,25 +83,30 @@ class MarkerMap:
     def update(self, time_s: float, observations: list[MarkerObservation]) -> Localisation | None:
         """Map one frame's markers and localise the camera from the mapped ones (None if none)."""
         observations = self._without_repeated_ids(time_s, observations)
-        over = {o.marker_id: camera_over_marker(o) for o in observations}
-        distance = {o.marker_id: o.distance_m for o in observations}
-        height = {o.marker_id: float(o.camera_in_marker()[2]) for o in observations}
         if self.root is None and observations:
             nearest = min(observations, key=lambda o: o.distance_m)
             self.root = nearest.marker_id
             self.poses[self.root] = np.zeros(3)
             self.adjacency[self.root] = {}
             self.log(time_s, "map_started", f"marker {self.root} is the map's origin")
-        known = [i for i in over if i in self.poses]
-        known = self._without_duplicates(time_s, known, over)
-        self._link(observations, over, distance)
-        self._add_new(time_s, [i for i in over if i not in self.poses], known, over, distance)
+        over = {o.marker_id: camera_over_marker(o) for o in observations}
+        known = self._without_duplicates(time_s, [i for i in over if i in self.poses], over)
+        usable = [o for o in observations if o.marker_id not in self._rejected]
+        solved = camera_over_floor([o for o in usable if o.marker_id in known], self.poses, self.settings.marker_size_m)
+        if solved is None:
+            self._candidates = {}
+            return None
+        R_cam_floor, t_cam_floor = solved
+        placed = {o.marker_id: marker_pose_from_corners(floor_points(R_cam_floor, t_cam_floor, o.rays)) for o in usable}
+        placed = {i: pose for i, pose in placed.items() if np.all(np.isfinite(pose))}  # a ray along the floor meets it nowhere
+        distance = {o.marker_id: o.distance_m for o in usable}
+        self._link(placed, distance)
+        self._add_new(time_s, [i for i in placed if i not in self.poses], placed)
         if self._new_markers >= self.settings.refine_every_markers and len(self.poses) > 2:
             self.refine()
-        used = [i for i in over if i in self.poses and i not in self._rejected]
-        if not used:
-            return None
-        return self._localise(used, over, distance, height)
+        camera, height = camera_pose_2d(R_cam_floor, t_cam_floor)
+        by_marker = {i: compose(self.poses[i], compose(inverse(placed[i]), camera))[:2] for i in known}
+        return Localisation(camera, height, tuple(known), by_marker)
 
     def _without_repeated_ids(self, time_s: float, observations: list[MarkerObservation]) -> list[MarkerObservation]:
         counts: dict[int, int] = {}
@@ -127,17 +135,14 @@ class MarkerMap:
             self.log(time_s, "duplicate_id", f"marker {i} seen {np.linalg.norm(cameras[i] - centre):.2f} m from its mapped place: not used")
         return keep
 
-    def _add_new(self, time_s: float, new: list[int], known: list[int], over: dict, distance: dict) -> None:
+    def _add_new(self, time_s: float, new: list[int], placed: dict[int, np.ndarray]) -> None:
         seen_now = set(new)
         self._candidates = {i: n for i, n in self._candidates.items() if i in seen_now}
-        if not known:
-            return
-        anchor = min(known, key=lambda i: distance[i])
         for i in new:
             self._candidates[i] = self._candidates.get(i, 0) + 1
             if self._candidates[i] < self.min_frames:
                 continue
-            self.poses[i] = compose(compose(self.poses[anchor], over[anchor]), inverse(over[i]))
+            self.poses[i] = placed[i]
             self.adjacency.setdefault(i, {})
             del self._candidates[i]
             self._new_markers += 1
@@ -147,18 +152,19 @@ class MarkerMap:
         """Seed 003: the farther the camera, the lower the quality of what it links."""
         return max(0.0, 1.0 - distance_m / self.settings.max_quality_distance_m)
 
-    def _link(self, observations: list[MarkerObservation], over: dict, distance: dict) -> None:
-        ids = [o.marker_id for o in observations if o.marker_id in over]
-        if len(ids) < 2:
-            return
-        centres = {o.marker_id: o.t_cam_marker * np.array([1.0, -1.0, 1.0]) for o in observations}  # view-port: y up
+    def _link(self, placed: dict[int, np.ndarray], distance: dict[int, float]) -> None:
+        """Links and relative poses of every pair of markers placed in this frame."""
+        ids = list(placed)
         for a_index, a in enumerate(ids):
             for b in ids[a_index + 1 :]:
                 quality = self.quality(max(distance[a], distance[b]))
-                self._accumulate(a, b, relative_pose(over[a], over[b]), quality)
-                offset = yaw_compensate(centres[b] - centres[a], -over[a][2])[0, :2]  # Eq. 1 (its phi turns clockwise), in marker a's axes
-                self.pitch_m = min(self.pitch_m, float(np.linalg.norm(offset))) if np.linalg.norm(offset) > self.settings.marker_size_m else self.pitch_m
-                direction = _direction(offset, self.pitch_m)
+                self._accumulate(a, b, compose(inverse(placed[a]), placed[b]), quality)
+                offset = placed[b][:2] - placed[a][:2]
+                length = float(np.linalg.norm(offset))
+                if length > self.settings.marker_size_m and a in self.poses and b in self.poses:  # mapped pairs only: a new one may be misplaced
+                    self.pitch_m = min(self.pitch_m, length)
+                along_a = yaw_compensate(np.array([offset[0], offset[1], 0.0]), placed[a][2])[0, :2]  # Eq. 1: in marker a's axes
+                direction = _direction(along_a, self.pitch_m)
                 if direction is None:
                     continue
                 for here, there, way in ((a, b, direction), (b, a, OPPOSITE[direction])):
@@ -179,14 +185,6 @@ class MarkerMap:
         if self.root is not None:
             self.poses = refine_poses(self.poses, self.edges, self.root)
         self._new_markers = 0
-
-    def _localise(self, used: list[int], over: dict, distance: dict, height: dict) -> Localisation:
-        weights = np.array([1.0 / max(distance[i], 0.05) ** 2 for i in used])
-        cameras = np.array([compose(self.poses[i], over[i]) for i in used])
-        xy = (weights[:, None] * cameras[:, :2]).sum(axis=0) / weights.sum()
-        yaw = np.arctan2((weights * np.sin(cameras[:, 2])).sum(), (weights * np.cos(cameras[:, 2])).sum())
-        pose = np.array([xy[0], xy[1], yaw + np.pi / 2])  # image up is the body's forward axis
-        return Localisation(pose, float(np.average([height[i] for i in used], weights=weights)), tuple(used), {i: c[:2] for i, c in zip(used, cameras)})
 
     def grid(self) -> dict[int, tuple[int, int]]:
         """The 2-D grid (column east, row north) from the links, walked from the first marker;

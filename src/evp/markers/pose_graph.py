@@ -13,7 +13,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 
-from evp.markers.planar import compose, inverse, wrap
+from evp.markers.planar import wrap
 
 ANGLE_WEIGHT_M = 0.1  # one radian of relative heading counts like 0.1 m of relative position
 
@@ -60,8 +60,3 @@ def refine_poses(initial: dict[int, np.ndarray], edges: dict[tuple[int, int], tu
     solved = unpack(result.x)
     solved[:, 2] = wrap(solved[:, 2])
     return {marker_id: solved[index[marker_id]] for marker_id in ids}
-
-
-def relative_pose(camera_over_a: np.ndarray, camera_over_b: np.ndarray) -> np.ndarray:
-    """Pose of marker b in marker a's frame from one frame's camera poses over each."""
-    return compose(camera_over_a, inverse(camera_over_b))

@@ -12,8 +12,9 @@ corner marker (every fourth run a corner), an operator push off the map (0.3 m/s
 diagonal at corners), then the autopilot alone for 6 s; recovered when the vehicle comes back over
 the map, never gives it up and never reaches a wall. The
 missions render at ``--resolution`` (320x240 keeps 20 seeds within the hour on one core; the lens
-is the 640x480 one, scaled); the time per frame is measured on one 640x480 mission with OpenCV on
-one thread: detection, map update and command, without rendering. Needs no shared data.
+is the 640x480 one, scaled); the time per frame is measured on a 30 s 640x480 mission with OpenCV
+on one thread: detection, map update and command, without rendering, as the thread's CPU time
+(a shared machine's load stretches the wall time, which is shown beside it). Needs no shared data.
 """
 
 from __future__ import annotations
@@ -203,14 +204,16 @@ def main() -> None:
             }
         )
     )
-    speed = fly(MissionSpec(seed=0, duration_s=30.0, resolution=(640, 480)))
+    speed = fly(MissionSpec(seed=0, duration_s=30.0, resolution=(640, 480)), clock=time.thread_time)
+    wall = fly(MissionSpec(seed=0, duration_s=30.0, resolution=(640, 480)), clock=time.perf_counter)
     p95 = float(np.percentile(speed.frame_ms, 95))
+    load = os.getloadavg()[0]
     print(
         table.add(
             {
                 "target": "detection + map + command <= 10 ms p95 per 640x480 frame, one core",
                 "paper": "25 ms",
-                "ours": f"p95 {p95:.1f} ms, median {np.median(speed.frame_ms):.1f} ms",
+                "ours": f"CPU time p95 {p95:.1f} ms, median {np.median(speed.frame_ms):.1f} ms (wall p95 {np.percentile(wall.frame_ms, 95):.1f} ms at load {load:.0f} on {os.cpu_count()} cores)",
                 "runs": len(speed.frame_ms),
                 "met": "yes" if p95 <= 10.0 else "no",
             }

@@ -26,11 +26,14 @@ def fly(
         False, "--no-drift-correction", help="Fly without the velocity loop on marker motion (seed 003's uncorrected hover)."
     ),
     config: Path | None = typer.Option(None, "--config", help="Settings YAML (markers, autopilot sections)."),
+    serve: int | None = typer.Option(None, "--serve", help="Fly in real time and serve the operator page on this port (map, state, commands)."),
+    host: str = typer.Option("127.0.0.1", "--host", help="Address the operator page listens on (with --serve)."),
+    linger: float = typer.Option(3.0, "--linger", min=0.0, help="Seconds the page stays up after the mission (with --serve)."),
 ) -> None:
     """Fly a whole mission: lift-off, exploration, navigation, edge recovery, landing."""
     from evp.config import load_settings
     from evp.eval.mission_report import write_mission
-    from evp.sim.mission import MissionSpec
+    from evp.sim.mission import MissionRun, MissionSpec
     from evp.sim.mission import fly as fly_mission
 
     if scene not in SCENES:
@@ -50,7 +53,14 @@ def fly(
             last[0] = t
             typer.echo(f"t={t:5.1f} s  {pilot.state.value:<11}  {len(pilot.marker_map)} markers mapped", err=True)
 
-    result = fly_mission(spec, settings.autopilot, settings.markers, progress)
+    if serve is None:
+        result = fly_mission(spec, settings.autopilot, settings.markers, progress)
+    else:
+        from evp.station.mission_live import serve_mission
+
+        run = MissionRun(spec, settings.autopilot, settings.markers)
+        serve_mission(run, host, serve, linger, lambda text: typer.echo(text, err=True))
+        result = run.result()
     summary = write_mission(result, out)
     typer.echo(
         f"landed={summary['landed']} landing_error_m={summary['landing_error_m']} mapped={summary['markers_mapped']}/{summary['markers_total']} "

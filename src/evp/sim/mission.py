@@ -136,6 +136,107 @@ def _in(windows: list[tuple[float, float]], t: float) -> bool:
     return any(start <= t < start + duration for start, duration in windows)
 
 
+class MissionRun:
+    """One mission, a frame at a time (``step``), so a live station can pace it and send the
+    operator's commands between frames; ``fly`` runs one to its end."""
+
+    def __init__(
+        self,
+        spec: MissionSpec,
+        autopilot_settings: AutopilotSettings | None = None,
+        marker_settings: MarkerSettings | None = None,
+        clock: Callable[[], float] = time.perf_counter,
+    ):
+        autopilot_settings = autopilot_settings or AutopilotSettings()
+        marker_settings = marker_settings or MarkerSettings()
+        for name, marker in (("target", spec.target), ("start", spec.start_marker)):
+            if marker is not None and not 0 <= marker < MARKER_COLS * MARKER_ROWS:
+                raise UsageError(f"--{name} {marker}: the field's markers are 0-{MARKER_COLS * MARKER_ROWS - 1}")
+        self.spec = spec
+        self.clock = clock
+        self.rng = np.random.default_rng(spec.seed)
+        self.centres = marker_world_centres()
+        self.scene = build_scenario("marker-field", SimOptions(duration_s=1.0)).scene
+        camera = mission_camera(spec.resolution)
+        self.renderer = Renderer(camera, self.scene)
+        self.detector = MarkerDetector(camera, marker_settings)
+        self.vehicle = Quadrotor(spec.vehicle, self.rng, self.centres[spec.start_marker] + self.rng.normal(0, 0.01, 2))
+        self.pilot = Autopilot(autopilot_settings, marker_settings, landing_target=spec.target, marker_map=spec.prior_map)
+        if spec.hover_s is not None:
+            self.pilot.hover(spec.hover_s)
+        self.commands = sorted(spec.commands, key=lambda c: c[0])
+        self.frame_dt = 1.0 / spec.fps
+        self.records: dict[str, list] = {k: [] for k in ("times", "truth", "estimated", "heights", "states", "mapped", "frame_ms", "issued")}
+        self._noise = np.empty((camera.height, camera.width), np.float32)
+        cv2.setRNGSeed(spec.seed)
+        self.left_room = False
+        self.done = False
+        self.t = 0.0
+
+    def step(self) -> bool:
+        """One frame: sense, decide, move. False once the mission is over."""
+        if self.done or self.t > self.spec.duration_s:
+            self.done = True
+            return False
+        spec, pilot, t, r = self.spec, self.pilot, self.t, self.records
+        while self.commands and self.commands[0][0] <= t:
+            pilot.command(t, self.commands.pop(0)[1])
+        s = self.vehicle.state
+        R = s.rotation()
+        distance = ray_distance(self.scene, s.position, R @ np.array([0.0, 0.0, -1.0]))
+        reading = distance + self.rng.normal(0, spec.range.noise_m) if distance <= spec.range.max_range_m and not _in(spec.range_gaps, t) else float("nan")
+        if not _in(spec.frame_gaps, t):
+            T = np.eye(4)
+            T[:3, :3] = R @ DOWNWARD
+            T[:3, 3] = s.position
+            image = self.renderer.render(T).astype(np.float32)
+            cv2.randn(self._noise, 0.0, IMAGE_NOISE_SIGMA)
+            frame = np.clip(image + self._noise, 0, 255).astype(np.uint8)
+            began = self.clock()
+            command = pilot.step(t, self.detector.detect(frame), reading)
+            r["frame_ms"].append((self.clock() - began) * 1000.0)
+        else:
+            command = pilot.step(t, None, reading)
+        r["issued"].append(command)
+        r["times"].append(t)
+        r["truth"].append(s.position.copy())
+        r["estimated"].append(pilot.position.copy() if pilot.position is not None else np.full(3, np.nan))
+        r["heights"].append(reading)
+        r["states"].append(pilot.state.value)
+        r["mapped"].append(len(set(pilot.marker_map.poses) & set(self.centres)))
+        if pilot.state == State.LANDED:
+            self.done = True
+            return False
+        for _ in range(PHYSICS_STEPS_PER_FRAME):
+            self.vehicle.step(command.tilt_body, command.climb_m_s, command.motors, self.frame_dt / PHYSICS_STEPS_PER_FRAME)
+        if np.any(np.abs(self.vehicle.state.position[:2]) > ROOM_HALF_M - VEHICLE_RADIUS_M):
+            self.left_room = self.done = True
+            pilot.log("left_room", f"the vehicle reached the room's wall at {self.vehicle.state.position[:2].round(2).tolist()}")
+            return False
+        self.t = round(t + self.frame_dt, 9)
+        return True
+
+    def result(self) -> MissionResult:
+        r = self.records
+        root = self.pilot.marker_map.root
+        origin = np.array([*self.centres[root], 0.0]) if root in self.centres else np.zeros(3)
+        return MissionResult(
+            self.spec,
+            np.array(r["times"]),
+            np.array(r["truth"]).reshape(-1, 3),
+            np.array(r["estimated"]).reshape(-1, 3),
+            np.array(r["heights"]),
+            r["states"],
+            np.array(r["mapped"]),
+            np.array(r["frame_ms"]),
+            r["issued"],
+            self.pilot,
+            self.centres,
+            origin,
+            self.left_room,
+        )
+
+
 def fly(
     spec: MissionSpec,
     autopilot_settings: AutopilotSettings | None = None,
@@ -143,87 +244,9 @@ def fly(
     progress: Callable[[float, Autopilot], None] | None = None,
     clock: Callable[[], float] = time.perf_counter,
 ) -> MissionResult:
-    """Fly one mission; ``clock`` times the autopilot's work per frame."""
-    autopilot_settings = autopilot_settings or AutopilotSettings()
-    marker_settings = marker_settings or MarkerSettings()
-    for name, marker in (("target", spec.target), ("start", spec.start_marker)):
-        if marker is not None and not 0 <= marker < MARKER_COLS * MARKER_ROWS:
-            raise UsageError(f"--{name} {marker}: the field's markers are 0-{MARKER_COLS * MARKER_ROWS - 1}")
-    rng = np.random.default_rng(spec.seed)
-    centres = marker_world_centres()
-    scene = build_scenario("marker-field", SimOptions(duration_s=1.0)).scene
-    camera = mission_camera(spec.resolution)
-    renderer = Renderer(camera, scene)
-    detector = MarkerDetector(camera, marker_settings)
-    start = centres[spec.start_marker] + rng.normal(0, 0.01, 2)
-    vehicle = Quadrotor(spec.vehicle, rng, start)
-    pilot = Autopilot(autopilot_settings, marker_settings, landing_target=spec.target, marker_map=spec.prior_map)
-    if spec.hover_s is not None:
-        pilot.hover(spec.hover_s)
-    commands = sorted(spec.commands, key=lambda c: c[0])
-    frame_dt = 1.0 / spec.fps
-    times, truth, estimated, heights, states, mapped, frame_ms, issued = [], [], [], [], [], [], [], []
-    noise = np.empty((camera.height, camera.width), np.float32)
-    cv2.setRNGSeed(spec.seed)
-    command = Command(0.0, State.GROUND, np.zeros(2), np.zeros(2), 0.0, False)
-    left_room = False
-    t = 0.0
-    while t <= spec.duration_s:
-        while commands and commands[0][0] <= t:
-            pilot.command(t, commands.pop(0)[1])
-        s = vehicle.state
-        R = s.rotation()
-        down = R @ np.array([0.0, 0.0, -1.0])
-        distance = ray_distance(scene, s.position, down)
-        reading = distance + rng.normal(0, spec.range.noise_m) if distance <= spec.range.max_range_m and not _in(spec.range_gaps, t) else float("nan")
-        observations = None
-        elapsed = 0.0
-        if not _in(spec.frame_gaps, t):
-            T = np.eye(4)
-            T[:3, :3] = R @ DOWNWARD
-            T[:3, 3] = s.position
-            image = renderer.render(T).astype(np.float32)
-            cv2.randn(noise, 0.0, IMAGE_NOISE_SIGMA)
-            frame = np.clip(image + noise, 0, 255).astype(np.uint8)
-            began = clock()
-            observations = detector.detect(frame)
-            command = pilot.step(t, observations, reading)
-            elapsed = clock() - began
-            frame_ms.append(elapsed * 1000.0)
-        else:
-            command = pilot.step(t, None, reading)
-        issued.append(command)
-        times.append(t)
-        truth.append(s.position.copy())
-        estimated.append(pilot.position.copy() if pilot.position is not None else np.full(3, np.nan))
-        heights.append(reading)
-        states.append(pilot.state.value)
-        mapped.append(len(set(pilot.marker_map.poses) & set(centres)))
+    """Fly one mission to its end; ``clock`` times the autopilot's work per frame."""
+    run = MissionRun(spec, autopilot_settings, marker_settings, clock)
+    while run.step():
         if progress is not None:
-            progress(t, pilot)
-        if pilot.state == State.LANDED:
-            break
-        for _ in range(PHYSICS_STEPS_PER_FRAME):
-            vehicle.step(command.tilt_body, command.climb_m_s, command.motors, frame_dt / PHYSICS_STEPS_PER_FRAME)
-        if np.any(np.abs(vehicle.state.position[:2]) > ROOM_HALF_M - VEHICLE_RADIUS_M):
-            left_room = True
-            pilot.log("left_room", f"the vehicle reached the room's wall at {vehicle.state.position[:2].round(2).tolist()}")
-            break
-        t = round(t + frame_dt, 9)
-    root = pilot.marker_map.root
-    origin = np.array([*centres[root], 0.0]) if root in centres else np.zeros(3)
-    return MissionResult(
-        spec,
-        np.array(times),
-        np.array(truth),
-        np.array(estimated),
-        np.array(heights),
-        states,
-        np.array(mapped),
-        np.array(frame_ms),
-        issued,
-        pilot,
-        centres,
-        origin,
-        left_room,
-    )
+            progress(run.t, run.pilot)
+    return run.result()

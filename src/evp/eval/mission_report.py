@@ -7,20 +7,11 @@ import csv
 import json
 from pathlib import Path
 
-import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from evp.sim.mission import MissionResult  # noqa: E402
-
-
-def _save(fig, path: Path) -> Path:
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+from evp.eval.plots import _save  # also selects the Agg backend
+from evp.sim.mission import MissionResult
 
 
 def plot_flight_level(result: MissionResult, path: Path) -> Path:

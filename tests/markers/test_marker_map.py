@@ -87,3 +87,23 @@ def test_the_pose_graph_spreads_a_chain_error_over_a_loop():
     before = max(np.linalg.norm(start[i][:2] - truth[i][:2]) for i in truth)
     after = max(np.linalg.norm(refined[i][:2] - truth[i][:2]) for i in truth)
     assert after < 1e-4 < before
+
+
+def test_the_pose_graph_jacobian_is_the_residuals_derivative():
+    from scipy.optimize import approx_fprime
+
+    from evp.markers.pose_graph import relative_jacobian, relative_residuals
+
+    rng = np.random.default_rng(0)
+    poses = rng.normal(0, 1, (5, 3))
+    pairs = np.array([[0, 1], [1, 2], [2, 3], [3, 4], [4, 0], [1, 3]])
+    measured, weights = rng.normal(0, 1, (6, 3)), rng.uniform(0.5, 1.0, 6)
+
+    def residuals(x):
+        moved = poses.copy()
+        moved[1:] = x.reshape(-1, 3)
+        return relative_residuals(moved, pairs, measured, weights)
+
+    numeric = np.array([approx_fprime(poses[1:].ravel(), lambda x, k=k: residuals(x)[k], 1e-7) for k in range(18)])
+    analytic = relative_jacobian(poses, pairs, weights, np.array([-1, 0, 1, 2, 3])).toarray()
+    np.testing.assert_allclose(analytic, numeric, atol=1e-5)

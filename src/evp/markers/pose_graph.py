@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.sparse import lil_matrix
+from scipy.sparse import csr_matrix
 
 from evp.markers.planar import wrap
 
@@ -27,6 +27,33 @@ def relative_residuals(poses: np.ndarray, edges_ij: np.ndarray, measured: np.nda
     error = predicted - measured
     error[:, 2] = wrap(error[:, 2]) * ANGLE_WEIGHT_M
     return (error * sqrt_weights[:, None]).ravel()
+
+
+def relative_jacobian(poses: np.ndarray, edges_ij: np.ndarray, sqrt_weights: np.ndarray, column: np.ndarray) -> csr_matrix:
+    """Sparse Jacobian of :func:`relative_residuals` over the free poses (``column``: a node's
+    block of three columns, -1 when it is held fixed). With R(-theta_a) = [[c, s], [-s, c]], the
+    position error R(-theta_a)(p_b - p_a) has derivative -R, R and [[-s, c], [-c, -s]](p_b - p_a)
+    in p_a, p_b and theta_a; the heading error has -1 and +1 (times the angle weight)."""
+    a, b = poses[edges_ij[:, 0]], poses[edges_ij[:, 1]]
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
+    n = len(edges_ij)
+    block_b = np.zeros((n, 3, 3))
+    block_b[:, 0, 0], block_b[:, 0, 1], block_b[:, 1, 0], block_b[:, 1, 1] = c, s, -s, c
+    block_b[:, 2, 2] = ANGLE_WEIGHT_M
+    block_a = -block_b
+    block_a[:, 0, 2] = -s * dx + c * dy
+    block_a[:, 1, 2] = -c * dx - s * dy
+    rows, cols, values = [], [], []
+    base_rows = 3 * np.arange(n)[:, None, None] + np.arange(3)[None, :, None]
+    for node, block in ((edges_ij[:, 0], block_a), (edges_ij[:, 1], block_b)):
+        keep = column[node] >= 0
+        cols_here = 3 * column[node][keep][:, None, None] + np.arange(3)[None, None, :]
+        rows.append(np.broadcast_to(base_rows[keep], (keep.sum(), 3, 3)).ravel())
+        cols.append(np.broadcast_to(cols_here, (keep.sum(), 3, 3)).ravel())
+        values.append((block[keep] * sqrt_weights[keep, None, None]).ravel())
+    free_count = int(column.max()) + 1
+    return csr_matrix((np.concatenate(values), (np.concatenate(rows), np.concatenate(cols))), shape=(3 * n, 3 * free_count))
 
 
 def refine_poses(initial: dict[int, np.ndarray], edges: dict[tuple[int, int], tuple[np.ndarray, float]], fixed: int) -> dict[int, np.ndarray]:
@@ -48,14 +75,14 @@ def refine_poses(initial: dict[int, np.ndarray], edges: dict[tuple[int, int], tu
         poses[free] = x.reshape(-1, 3)
         return poses
 
-    sparsity = lil_matrix((3 * len(pairs), 3 * len(free)), dtype=int)
-    column = {k: n for n, k in enumerate(free)}
-    for row, (a, b) in enumerate(pairs):
-        for node in (a, b):
-            if node in column:
-                sparsity[3 * row : 3 * row + 3, 3 * column[node] : 3 * column[node] + 3] = 1
+    column = np.full(len(ids), -1)
+    column[free] = np.arange(len(free))
+
+    def jacobian(x: np.ndarray) -> csr_matrix:
+        return relative_jacobian(unpack(x), pairs, sqrt_weights, column)
+
     result = least_squares(
-        lambda x: relative_residuals(unpack(x), pairs, measured, sqrt_weights), start[free].ravel(), jac_sparsity=sparsity, method="trf", max_nfev=20
+        lambda x: relative_residuals(unpack(x), pairs, measured, sqrt_weights), start[free].ravel(), jac=jacobian, method="trf", max_nfev=20
     )
     solved = unpack(result.x)
     solved[:, 2] = wrap(solved[:, 2])

@@ -10,9 +10,8 @@ vehicle is off the map), a flight from corner marker 0 to the opposite corner 98
 and a landing on a random marker from the middle. Edge recovery: take-off from a random edge or
 corner marker (every fourth run a corner), an operator push off the map (0.3 m/s for 1.5 s,
 diagonal at corners), then the autopilot alone for 6 s; recovered when the vehicle comes back over
-the map, never gives it up and never reaches a wall. The
-missions render at ``--resolution`` (320x240 keeps 20 seeds within the hour on one core; the lens
-is the 640x480 one, scaled); the time per frame is measured on a 30 s 640x480 mission with OpenCV
+the map, never gives it up and never reaches a wall. The missions render at ``--resolution``
+(320x240: 3-5 minutes a seed on the shared 2-core machine; the lens is the 640x480 one, scaled); the time per frame is measured on a 30 s 640x480 mission with OpenCV
 on one thread: detection, map update and command, without rendering, as the thread's CPU time
 (a shared machine's load stretches the wall time, which is shown beside it). Needs no shared data.
 """

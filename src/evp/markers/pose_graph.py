@@ -81,9 +81,7 @@ def refine_poses(initial: dict[int, np.ndarray], edges: dict[tuple[int, int], tu
     def jacobian(x: np.ndarray) -> csr_matrix:
         return relative_jacobian(unpack(x), pairs, sqrt_weights, column)
 
-    result = least_squares(
-        lambda x: relative_residuals(unpack(x), pairs, measured, sqrt_weights), start[free].ravel(), jac=jacobian, method="trf", max_nfev=20
-    )
+    result = least_squares(lambda x: relative_residuals(unpack(x), pairs, measured, sqrt_weights), start[free].ravel(), jac=jacobian, method="trf", max_nfev=20)
     solved = unpack(result.x)
     solved[:, 2] = wrap(solved[:, 2])
     return {marker_id: solved[index[marker_id]] for marker_id in ids}

@@ -314,6 +314,95 @@ class MavlinkSettings(_Section):
     )
 
 
+class MarkerSettings(_Section):
+    """Marker tracking and the marker map (``evp.markers``; seed 003)."""
+
+    dictionary: str = Field("DICT_4X4_100", description="OpenCV ArUco/AprilTag dictionary of the markers (the simulated floor: DICT_4X4_100)")
+    marker_size_m: float = Field(0.098, gt=0, description="black square's side (seed 003: 98 mm)")
+    corner_refinement: Literal["none", "subpix", "contour", "apriltag"] = Field(
+        "contour",
+        description="corner refinement: contour fits lines to the marker's edges; on the real AprilTag rotation series it keeps every yaw within 7 deg (subpix: 8.0)",
+    )
+    threshold_window_min_px: int = Field(
+        13, ge=3, description="smallest adaptive-threshold window; 13 = largest = one pass, 3x faster than OpenCV's 3-23 and as good on the rendered floor"
+    )
+    threshold_window_max_px: int = Field(13, ge=3, description="largest adaptive-threshold window (OpenCV's default: 23)")
+    threshold_window_step_px: int = Field(
+        10,
+        ge=1,
+        description="adaptive-threshold window step (OpenCV's default 10); the real AprilTag rotation series' 70-degree tag in clutter needs windows 3-23 by 4",
+    )
+    fast_detection: bool = Field(
+        True, description="OpenCV's ArUco 3 mode (Romero-Ramirez et al. 2018): candidates found on a downscaled image, corners refined on the full one"
+    )
+    max_quality_distance_m: float = Field(
+        0.8, gt=0, description="an adjacency seen from this far has quality 0 (seed 003: markers track from 100 to 800 mm; quality falls with the distance)"
+    )
+    duplicate_tolerance_m: float = Field(
+        0.15, gt=0, description="a marker observed this far from where the map has it is a duplicate id (two markers, one id): rejected and logged"
+    )
+    refine_every_markers: int = Field(
+        10, ge=1, description="the metric map is refined by its pose graph after this many new markers (a refinement costs ~10-50 ms: not every frame)"
+    )
+
+
+class AutopilotSettings(_Section):
+    """The seed 003 autopilot (``evp.autopilot``): gains, timings and limits. Times in seconds."""
+
+    flight_level_m: float = Field(
+        0.45, gt=0, description="range-finder height held in flight: inside seed 003's 200-700 mm tracking band, nearer the low end for bigger markers"
+    )
+    band_low_m: float = Field(0.2, gt=0, description="seed 003: markers track robustly between 200 and 700 mm")
+    band_high_m: float = Field(0.7, gt=0)
+    climb_rate_m_s: float = Field(0.4, gt=0, description="lift-off climb rate")
+    altitude_gain: float = Field(2.0, gt=0, description="climb rate per metre of height error (1/s)")
+    max_speed_m_s: float = Field(0.6, gt=0, description="fastest commanded horizontal speed")
+    position_gain: float = Field(1.6, gt=0, description="speed per metre to the target (1/s): the push grows with the distance (seed 003, 3.2.4)")
+    velocity_gain: float = Field(
+        0.35, gt=0, description="tilt (rad) per m/s of velocity error: the drift correction (seed 003, 3.2.5) closes this loop on marker motion"
+    )
+    max_tilt_rad: float = Field(0.25, gt=0, lt=0.8, description="largest tilt the autopilot commands")
+    drift_correction: bool = Field(True, description="close the velocity loop on the marker motion between frames (off: the paper's uncorrected hover)")
+    velocity_smoothing_s: float = Field(0.1, gt=0, description="time constant of the marker-motion velocity estimate")
+    edge_timeout_s: float = Field(0.75, gt=0, description="seed 003: no marker for 750 ms at a tracking height means the map's edge")
+    counter_steer_tilt_rad: float = Field(
+        0.1,
+        gt=0,
+        description="tilt of the counter-steer, held (with the trims) until markers return: blind, a firm push beats a velocity loop on a guessed velocity",
+    )
+    vote_weights: list[float] = Field(
+        default_factory=lambda: [2.0, 1.0, 1.0],
+        min_length=3,
+        max_length=3,
+        description="W_p, W_m, W_d of Eq. 4; seed 003 weights m stronger, here p is: its exit position is carried forward from the last marker by the velocity estimate, while m misleads while the map is partial",
+    )
+    edge_land_after_s: float = Field(4.0, gt=0, description="no marker for this long after an edge: land where it is rather than fly on blind (logged)")
+    trim_gain: float = Field(0.3, ge=0, description="trim (rad) learned per m/s of velocity error per second: the paper's trims, taking up a steady drift")
+    max_trim_rad: float = Field(0.08, ge=0, description="largest learned trim")
+    drag_per_s: float = Field(
+        0.4, ge=0, description="the airframe's linear drag (1/s): with the commanded tilt it carries the velocity estimate over frames without markers"
+    )
+    close_radius_m: float = Field(
+        0.14,
+        gt=0,
+        description="an unexplored place the camera passes this close to at the flight level without finding a marker lies beyond the map's edge: a marker there would be whole in the view (0.45 m up, the image's half height covers 0.22 m; 0.14 + half a marker + 2 cm)",
+    )
+    target_timeout_s: float = Field(8.0, gt=0, description="an exploration target not reached in this long is given up (logged)")
+    explore_interval_s: float = Field(0.4, gt=0, description="no new marker for this long: a new exploration target (seed 003, 3.2.3)")
+    reached_radius_m: float = Field(0.06, gt=0, description="a navigation target counts as reached within this")
+    land_radius_m: float = Field(0.015, gt=0, description="descent onto the target starts when the camera is this close above its centre")
+    land_max_speed_m_s: float = Field(0.05, gt=0, description="... and slower than this")
+    land_rate_m_s: float = Field(0.25, gt=0, description="descent rate when landing")
+    touchdown_m: float = Field(0.12, gt=0, description="range below which the vehicle is on the ground (landing gear)")
+    min_marker_frames: int = Field(
+        2, ge=1, description="a new marker is mapped once seen in this many consecutive frames (one frame at the image edge is noise)"
+    )
+    frame_timeout_s: float = Field(0.5, gt=0, description="no frame for this long: hold (level, no push); frames still missing after land_after_s: land")
+    land_after_s: float = Field(3.0, gt=0, description="frames missing this long: land where it is")
+    range_timeout_s: float = Field(0.3, gt=0, description="no valid range reading for this long: hold height from the marker poses' height, logged")
+    hover_time_s: float = Field(0.0, ge=0, description="hover mission: hold over the map's centre this long, then land (0: explore)")
+
+
 class StationSettings(_Section):
     """The base station (``evp serve``): what it asks the phones for."""
 
@@ -438,6 +527,8 @@ class Settings(_Section):
     mavlink: MavlinkSettings = MavlinkSettings()
     wifi: WifiSettings = WifiSettings()
     ekf_slam: EkfSlamSettings = EkfSlamSettings()
+    markers: MarkerSettings = MarkerSettings()
+    autopilot: AutopilotSettings = AutopilotSettings()
 
 
 # ORB-SLAM2/3 settings keys and where they go in EVP's settings.

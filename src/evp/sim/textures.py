@@ -106,9 +106,15 @@ MARKER_ROWS = 11
 MARKER_DICTIONARY = "DICT_4X4_100"
 
 
-def marker_field_texture(texels_per_marker: int = 24) -> tuple[np.ndarray, float, dict[int, np.ndarray]]:
+def marker_field_texture(texels_per_marker: int = 36) -> tuple[np.ndarray, float, dict[int, np.ndarray]]:
     """ArUco marker floor: (texture, metres per texel, marker id -> centre (x, y) in metres from
-    the field's corner). Marker ``id = row * 9 + col``; rows run along +y."""
+    the field's corner). Marker ``id = row * 9 + col``; rows run along +y.
+
+    Texture rows run along the floor's +y, which a camera looking down sees as image up, so each
+    marker is drawn upside down in the texture: seen from above it reads as itself (drawn as it
+    comes it is mirrored, and a mirrored marker decodes as nothing or as another id). Its top edge
+    points along +y. 36 texels (6 per code cell) keep the cell edges sharp down to a 0.15 m
+    landing view."""
     mpt = MARKER_SIZE_M / texels_per_marker
     gap = int(round(MARKER_GAP_M / mpt))
     width = MARKER_COLS * texels_per_marker + (MARKER_COLS + 1) * gap
@@ -121,7 +127,7 @@ def marker_field_texture(texels_per_marker: int = 24) -> tuple[np.ndarray, float
             marker_id = row * MARKER_COLS + col
             x0 = gap + col * (texels_per_marker + gap)
             y0 = gap + row * (texels_per_marker + gap)
-            texture[y0 : y0 + texels_per_marker, x0 : x0 + texels_per_marker] = cv2.aruco.generateImageMarker(dictionary, marker_id, texels_per_marker)
+            texture[y0 : y0 + texels_per_marker, x0 : x0 + texels_per_marker] = cv2.aruco.generateImageMarker(dictionary, marker_id, texels_per_marker)[::-1]
             centres[marker_id] = np.array([(x0 + texels_per_marker / 2) * mpt, (y0 + texels_per_marker / 2) * mpt])
     return texture, mpt, centres
 

@@ -95,7 +95,7 @@ def _record(name: str, folder: Path, out: Path, resume: bool) -> dict:
         "path_m": path,
         "ate_se3_m": navigation.get("ate_se3_rmse_m"),
         "ate_se3_path_percent": None if navigation.get("ate_se3_rmse_m") is None or not path else 100 * navigation["ate_se3_rmse_m"] / path,
-        "ate_se3_live_m": navigation.get("live_ate_se3_rmse_m", navigation.get("ate_se3_rmse_m")),
+        "ate_se3_live_m": navigation.get("live_ate_se3_rmse_m"),
         "ate_sim3_visual_m": metrics.get("rmse"),
         "started_s": None if started is None else started - motion_start,
         "start_source": "wheels" if "wheel odometry" in status else "visual-inertial",

@@ -317,7 +317,7 @@ def test_closes_the_loop_when_the_circle_comes_round(tmp_path, monkeypatch):
             assert len(closures) == 1
             assert closures[0].loop_keyframe < 10 and closures[0].matches >= 100
             assert lock_free_while_solving == [True]
-    assert ate[True] < 0.012
+    assert ate[True] < 0.0125  # 15 fps: an idle mapper waits 0.08 s, a keyframe every 2nd frame at most
     assert ate[True] < 0.85 * ate[False]
 
 

@@ -149,8 +149,11 @@ class LiveSession:
         self.station.on_event(self, row)
 
     def refuse(self, error: ProtocolError) -> None:
-        """Tell the client, log the event; the session goes on."""
+        """Tell the client, log the event (storage_full once for the station, not per message
+        into the store that cannot write); the session goes on."""
         self.reply(Error(code=error.code, message=error.message, seq=error.seq))
+        if error.code == "storage_full":
+            return
         self.event("error", error.code, error.message if error.seq is None else f"frame {error.seq}: {error.message}")
 
     # --- incoming -----------------------------------------------------------------------------

@@ -172,7 +172,9 @@ def test_a_dead_estimator_answers_its_frame_in_flight_and_is_restarted(tmp_path,
 
         async def running() -> None:
             phone.messages = [m for m in phone.messages if m.type != "status"]  # wait for a new one
-            await phone.until(lambda m: m.type == "status" and m.state == "running" and session.worker is not None and session.worker.ready, what="a ready estimator")
+            await phone.until(
+                lambda m: m.type == "status" and m.state == "running" and session.worker is not None and session.worker.ready, what="a ready estimator"
+            )
 
         async def posed(seq: int) -> None:
             session.on_binary(images[seq].pack(), time.time())
@@ -205,3 +207,41 @@ def test_a_dead_estimator_answers_its_frame_in_flight_and_is_restarted(tmp_path,
     answers = phone.answers()
     assert answers == {0: ["pose"], 1: ["estimator_failed"], 2: ["estimator_failed"], 3: ["pose"]}  # each exactly once
     assert events.count("estimator_restarted") == 1 and "estimator_failed" in events  # the operator is told
+
+
+def test_session_ids_are_checked_ended_sessions_are_final_and_an_unopenable_recording_is_not_live(tmp_path):
+    """Finding 7: a '"' in a session id chose a download's file name; ended sessions could be
+    resumed; a session whose file could not be opened stayed "live"."""
+    from evp.station.server import _no_such_session
+
+    station = _station(tmp_path)
+    try:
+        for hostile in ('x"; filename="evil.sh', "../../etc/passwd", "20261127-114952-c4546Z"):
+            with pytest.raises(ProtocolError, match="not a session id") as refused:
+                station.open_session(Hello(protocol=PROTOCOL_VERSION, resume=hostile))
+            assert refused.value.code == "unknown_session"
+            assert _no_such_session(hostile).status_code == 404
+        assert _no_such_session("20261127-114952-c45464") is None
+        session, _ = station.open_session(Hello(protocol=PROTOCOL_VERSION, device="phone"))
+        session.ended = True  # bye
+        with pytest.raises(ProtocolError, match="ended sessions are final") as refused:
+            station.open_session(Hello(protocol=PROTOCOL_VERSION, resume=session.id))
+        assert refused.value.code == "session_ended"
+        station.sessions.clear()
+        station.store.update_session(session.id, status="ended")
+        committed(lambda: station.store.session(session.id)["status"] == "ended", "the ended status")
+        with pytest.raises(ProtocolError, match="ended sessions are final"):  # reopened from the database
+            station.open_session(Hello(protocol=PROTOCOL_VERSION, resume=session.id))
+        session.recording.close()
+        sessions = station.data_dir / "sessions"
+        for path in sessions.iterdir():
+            path.unlink()
+        sessions.rmdir()
+        sessions.write_text("a file where the recordings' folder should be")
+        with pytest.raises(ProtocolError, match="recording cannot be opened") as refused:
+            station.open_session(Hello(protocol=PROTOCOL_VERSION, device="phone"))
+        assert refused.value.code == "storage_full"
+        committed(lambda: [r["status"] for r in station.store.list_sessions()].count("failed") == 1, "the failed session")
+        assert [r["status"] for r in station.store.list_sessions()].count("live") == 0
+    finally:
+        station.store.close()

@@ -182,14 +182,6 @@ def test_unknown_paths(tmp_path):
         open_dataset(tmp_path / "notes", "lidar-scans")
 
 
-def _png_header_only(width: int, height: int) -> bytes:
-    import struct
-    import zlib
-
-    ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + struct.pack(">I", len(ihdr)) + b"IHDR" + ihdr + struct.pack(">I", zlib.crc32(b"IHDR" + ihdr))
-
-
 def test_hostile_offline_input_is_one_specific_error_line(tmp_path):
     """Issue 34: a binary images.txt and a random .bag gave tracebacks; all-NaN timestamps were
     accepted and written as nan; a 20000x20000 PNG was decoded whole before it was skipped."""
@@ -217,6 +209,6 @@ def test_hostile_offline_input_is_one_specific_error_line(tmp_path):
 
     huge = builders.make_image_folder(tmp_path / "huge")
     first = sorted((huge / "images").iterdir())[0]
-    first.write_bytes(_png_header_only(20000, 20000))
+    first.write_bytes(builders.png_header_only(20000, 20000))
     with pytest.raises(DatasetError, match="20000x20000 pixels: more than 134 Mpx, not decoded"):
         load_image(first)

@@ -19,9 +19,7 @@ import asyncio
 import gc
 import json
 import math
-import struct
 import time
-import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,8 +28,9 @@ import numpy as np
 
 from evp.config import Settings
 from evp.station.base_station import Station
-from evp.station.store import SessionStore
 from evp.station.protocol import IMAGE_HEADER, IMAGE_MAGIC, PROTOCOL_VERSION, Hello, ImageMessage, ProtocolError, decode_image, decode_text, encode_image
+from evp.station.store import SessionStore
+from tests.io.builders import png_header_only
 
 WIDTH, HEIGHT = 64, 48
 CAMERA = {"width": WIDTH, "height": HEIGHT, "fx": 60.0, "fy": 60.0, "cx": 32.0, "cy": 24.0}
@@ -54,11 +53,6 @@ ABSURD_CAMERA = {
     "height": (0.0, 1e12),
 }
 BAD_VALUES = (None, "x", [], {}, -1, 1e999, True, [1, 2], "NaN", 10**40)
-
-
-def _png_header_only(width: int, height: int) -> bytes:
-    ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + struct.pack(">I", len(ihdr)) + b"IHDR" + ihdr + struct.pack(">I", zlib.crc32(b"IHDR" + ihdr))
 
 
 def _frame(seq: int, timestamp: float, encoding_id: int, width: int, height: int, payload: bytes, **header) -> bytes:
@@ -193,7 +187,7 @@ class HostileClient:
         if choice == 4:  # a float TIFF sent as png
             return _frame(self.seq + 1, self.time + 0.01, 2, WIDTH, HEIGHT, self.tiff)
         if choice == 5:  # a 20000x20000 PNG (its header)
-            return _frame(self.seq + 1, self.time + 0.01, 2, WIDTH, HEIGHT, _png_header_only(20000, 20000))
+            return _frame(self.seq + 1, self.time + 0.01, 2, WIDTH, HEIGHT, png_header_only(20000, 20000))
         if choice == 6:  # 16-bit PNG
             return _frame(self.seq + 1, self.time + 0.01, 2, WIDTH, HEIGHT, self.deep_png)
         if choice == 7:  # truncated
@@ -255,9 +249,7 @@ def _frame_seq(data: bytes) -> int | None:
         return None
 
 
-async def fuzz_station(
-    data_dir: Path, messages: int, seed: int = 0, progress=None, bye_every: int = 5000, new_estimator_every: int = 2000
-) -> FuzzResult:
+async def fuzz_station(data_dir: Path, messages: int, seed: int = 0, progress=None, bye_every: int = 5000, new_estimator_every: int = 2000) -> FuzzResult:
     """``messages`` hostile messages into a real station, in-process (the last one a bye); see the
     module's docstring. Each new session waits for its estimator, as a phone does."""
     settings = Settings.model_validate({"station": {"min_free_disk_mb": 0}})

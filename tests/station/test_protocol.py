@@ -26,6 +26,7 @@ from evp.station.protocol import (
     encode_image,
     image_pixels,
 )
+from tests.io.builders import png_header_only
 
 
 def test_messages_round_trip():
@@ -144,21 +145,12 @@ def test_payloads_that_are_not_what_they_claim_are_refused_from_their_header():
     with pytest.raises(ProtocolError, match="neither JPEG nor PNG, the frame says png") as info:
         image_pixels(ImageMessage(4, 1.0, "png", 30, 20, tiff.tobytes()))
     assert info.value.code == "corrupt_image"
-    huge = _png_header_only(20000, 20000)
+    huge = png_header_only(20000, 20000)
     with pytest.raises(ProtocolError, match="png is 20000x20000, the frame says 30x20"):
         image_pixels(ImageMessage(5, 1.0, "png", 30, 20, huge))
     ok, deep = cv2.imencode(".png", np.full((20, 30), 1000, np.uint16))
     with pytest.raises(ProtocolError, match="16-bit png"):
         image_pixels(ImageMessage(6, 1.0, "png", 30, 20, deep.tobytes()))
-
-
-def _png_header_only(width: int, height: int) -> bytes:
-    """A PNG's signature and IHDR chunk (what a header check reads), no image data."""
-    import struct
-    import zlib
-
-    ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + struct.pack(">I", len(ihdr)) + b"IHDR" + ihdr + struct.pack(">I", zlib.crc32(b"IHDR" + ihdr))
 
 
 json_values = st.recursive(

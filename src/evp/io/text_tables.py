@@ -6,21 +6,22 @@ from pathlib import Path
 
 import numpy as np
 
-from evp.errors import DatasetError
+from evp.errors import DataFormatError, DatasetError
 
 
-def read_text_file(path: Path) -> str:
-    """A text file's contents; a binary file (undecodable bytes, NUL) is one specific DatasetError."""
+def read_text_file(path: Path, error: type[DataFormatError] = DatasetError) -> str:
+    """A text file's contents; a missing, unreadable or binary file (undecodable bytes, NUL) is
+    one specific ``error`` naming the file."""
     if not path.is_file():
-        raise DatasetError(path, "file not found")
+        raise error(path, "file not found")
     try:
         text = path.read_text()
     except UnicodeDecodeError as exc:
-        raise DatasetError(path, f"not a text file (byte 0x{exc.object[exc.start]:02x} at offset {exc.start} is not UTF-8)") from None
+        raise error(path, f"not a text file (byte 0x{exc.object[exc.start]:02x} at offset {exc.start} is not UTF-8)") from None
     except OSError as exc:
-        raise DatasetError(path, f"cannot be read: {exc.strerror or exc}") from None
+        raise error(path, f"cannot be read: {exc.strerror or exc}") from None
     if "\x00" in text:
-        raise DatasetError(path, f"not a text file (a NUL byte at offset {text.index(chr(0))})")
+        raise error(path, f"not a text file (a NUL byte at offset {text.index(chr(0))})")
     return text
 
 

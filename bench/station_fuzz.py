@@ -105,6 +105,7 @@ async def _network(url: str, messages: int, seed: int, pid: int) -> dict:
             while sent < messages:
                 message = client.message()
                 await connection.send(message)
+                await asyncio.sleep(0)  # the reader answers the station's pings (a send need not yield)
                 sent += 1
                 counts["frames"] += isinstance(message, bytes)
                 if sent == messages // 10:
@@ -116,9 +117,10 @@ async def _network(url: str, messages: int, seed: int, pid: int) -> dict:
                     break
             else:
                 await connection.send('{"type": "bye"}')
-            await asyncio.wait_for(reader, 60)  # the station closes the link after a bye
-        except (websockets.ConnectionClosedError, TimeoutError):
+            await asyncio.wait_for(reader, 300)  # the station closes the link after a bye
+        except (websockets.ConnectionClosedError, TimeoutError) as exc:
             counts["dropped_links"] += 1
+            print(f"  link dropped after {sent} messages: {exc!r}", file=sys.stderr, flush=True)
         finally:
             reader.cancel()
             await connection.close()

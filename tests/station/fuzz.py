@@ -34,7 +34,9 @@ from tests.io.builders import png_header_only
 
 WIDTH, HEIGHT = 64, 48
 CAMERA = {"width": WIDTH, "height": HEIGHT, "fx": 60.0, "fy": 60.0, "cx": 32.0, "cy": 24.0}
-HOSTILE_TIMES = (0.0, -1.0, -1e-300, 2.0**31, 2.0**31 - 1e-3, 1.7e12, 1e308, -1e308, 5e-324, math.nan, math.inf, -math.inf)
+# every one refused: out of range, or (0, 5e-324) before any plausible time; a valid far-ahead time
+# would be taken and leave every later frame of the session out of order
+HOSTILE_TIMES = (0.0, -1.0, -1e-300, 2.0**31, 2.0**31 + 1e-3, 1.7e12, 1e308, -1e308, 5e-324, math.nan, math.inf, -math.inf)
 TELEMETRY = {
     "imu": {"gyro_rad_s": [0.0, 0.01, -0.02], "accel_m_s2": [0.1, -0.2, 9.8]},
     "gps": {"latitude_deg": 3.37, "longitude_deg": -76.53, "altitude_m": 995.0, "horizontal_accuracy_m": 4.0},
@@ -88,7 +90,9 @@ class HostileClient:
             return current + float(self.rng.uniform(0.001, 0.05))
         if self.rng.random() < 0.5:
             return float(self.rng.choice(HOSTILE_TIMES))
-        return float(10.0 ** self.rng.uniform(-12, 22) * self.rng.choice((-1, 1)))
+        if self.rng.random() < 0.5:
+            return -float(10.0 ** self.rng.uniform(-12, 22))
+        return float(10.0 ** self.rng.uniform(math.log10(2.0**31), 22))  # at least 2^31 s
 
     # --- text -----------------------------------------------------------------------------------
 
@@ -164,12 +168,20 @@ class HostileClient:
     # --- image frames ---------------------------------------------------------------------------
 
     def frame(self) -> bytes:
+        """The next image frame; later good frames go on after any valid time sent (the station
+        may have taken a hostile frame with a plausible header and a far-ahead time)."""
+        data = self._frame()
+        if len(data) >= IMAGE_HEADER.size:
+            timestamp = IMAGE_HEADER.unpack_from(data)[7]
+            if 0 <= timestamp < 2**31:
+                self.time = max(self.time, timestamp)
+        return data
+
+    def _frame(self) -> bytes:
         r = self.rng.random()
         image = self.images[self.seq % len(self.images)]
         if r < 0.55:  # a good next frame
             t = self._time(self.time)
-            if math.isfinite(t) and 0 <= t < 2**31 and t > self.time:
-                self.time = t
             self.seq += 1
             encoding = str(self.rng.choice(["png", "jpeg", "raw"]))
             return encode_image(image, self.seq, t, encoding).pack()

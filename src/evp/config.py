@@ -408,6 +408,16 @@ class StationSettings(_Section):
 
     encoding: Literal["jpeg", "png", "raw"] = Field("jpeg", description="image encoding asked of phones")
     jpeg_quality: int = Field(85, ge=1, le=100)
+    min_free_disk_mb: float = Field(
+        256.0,
+        ge=0,
+        description="below this much free space in the data folder the station refuses new recording (storage_full) rather than lose data: 12 s of the fastest stream measured (21 MiB/s), plus room for SQLite's journal",
+    )
+    max_estimator_restarts: int = Field(
+        3,
+        ge=0,
+        description="an estimator process that dies is restarted (its frame in flight answered with estimator_failed); after this many deaths without a pose in between it stays down until the next config",
+    )
     estimate_on_connect: bool = Field(True, description="start estimating as soon as a mobile station is configured (else wait for the operator)")
     resume_window_s: float = Field(
         300.0, gt=0, description="an interrupted session keeps its estimator (and map) this long for a reconnect; later it resumes with a new map"

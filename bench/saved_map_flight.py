@@ -2,8 +2,8 @@
 second flight loads the first's saved map, relocalises in it and is georeferenced at once, with
 GPS jammed from take-off.
 
-Usage: python bench/saved_map_flight.py [--duration 100] [--second-duration 70] [--fps 10]
-       [--altitude 40] [--area 80 48] [--takeoff 15 10] [--keep DIR]
+Usage: python bench/saved_map_flight.py [--duration 90] [--second-duration 60] [--fps 10]
+       [--altitude 40] [--area 100 60] [--takeoff 20 12] [--keep DIR]
 
 Renders `evp sim drone-flight` twice over the same world (seed 0, 640x380, lawnmower over
 ``--area`` at ``--altitude``):
@@ -94,12 +94,12 @@ def _horizontal_errors(stage, result, dataset, settings, until: float) -> tuple[
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("--duration", type=float, default=100.0, help="the first flight (s)")
-    parser.add_argument("--second-duration", type=float, default=70.0, help="the second flight (s)")
+    parser.add_argument("--duration", type=float, default=90.0, help="the first flight (s)")
+    parser.add_argument("--second-duration", type=float, default=60.0, help="the second flight (s)")
     parser.add_argument("--fps", type=float, default=10.0)
     parser.add_argument("--altitude", type=float, default=40.0)
-    parser.add_argument("--area", type=float, nargs=2, default=(80.0, 48.0))
-    parser.add_argument("--takeoff", type=float, nargs=2, default=(15.0, 10.0), help="the second flight's take-off point (m from the first's)")
+    parser.add_argument("--area", type=float, nargs=2, default=(100.0, 60.0))
+    parser.add_argument("--takeoff", type=float, nargs=2, default=(20.0, 12.0), help="the second flight's take-off point (m from the first's)")
     parser.add_argument("--keep", type=Path, help="keep the renders and the first run's outputs here")
     args = parser.parse_args()
     command = (

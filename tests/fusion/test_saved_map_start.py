@@ -78,6 +78,8 @@ def test_georeferenced_at_the_first_relocalisation_without_gps():
     assert [n.code for n in stage.notices if n.level == "info"] == ["navigation_started", "georeferenced"]
     assert "from the saved map" in next(n.text for n in stage.notices if n.code == "georeferenced")
     assert "saved map" in stage.status and stage.map_georeference is None
+    # no fix at all: GPS is unavailable, not trusted (and a first fix would be checked before it is)
+    assert stage.gps_state == "unavailable" and not any(e.gps_trusted for e in result.estimates)
     errors = _horizontal_errors(result, truth)
     assert len(errors) > 300
     # the georeference's 0.5 m shift and 0.3 degree turn (0.2 m at 40 m from the map's origin)
@@ -91,7 +93,7 @@ def test_a_new_map_instead_of_the_saved_one_drops_its_georeference():
     its poses are in a new map, which the saved georeference does not describe."""
     estimator = _Answers([PoseEstimate(0.0, np.eye(4), TrackingState.NOT_INITIALIZED, 0)], {0: 1})
     stage = NavigationStage(np.eye(4), NavigationSettings(), lambda: estimator.reset_counter, map_georeference=_georeference((43.7, 10.4, 4.0)))
-    assert stage.enu_frame is not None
+    assert stage.enu_frame is not None and stage.gps_state == "off"  # waiting to relocalise: GPS is not used
     run_frames(estimator, _frames([0.0]), stages=[stage])
     assert stage.map_georeference is None and stage.enu_frame is None and stage.gps_state == "off"
     assert [n.code for n in stage.notices] == ["saved_map_abandoned"]

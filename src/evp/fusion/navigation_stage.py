@@ -406,10 +406,10 @@ class NavigationStage:
 
     @property
     def gps_state(self) -> str:
-        """GPS as the filter uses it: ``off`` (no fix with a lock yet, or ``use_gps`` false),
+        """GPS as the filter uses it: ``off`` (no fix with a lock yet, ``use_gps`` false, or waiting to relocalise in a saved map),
         ``aligning`` (pairing fixes for the heading fit), then the monitor's ``trusted`` /
         ``untrusted`` (spoofing suspected) / ``unavailable`` (jamming, outage)."""
-        if self.enu_frame is None:
+        if self.enu_frame is None or self.map_georeference is not None:  # the latter: waiting to relocalise in a saved map
             return "off"
         if self.world_alignment is None:
             return "aligning"
@@ -528,6 +528,7 @@ class NavigationStage:
         self.filter = NavigationFilter(state, self.settings, self._saved_map_covariance(state, camera - geo.t))
         self.initialised_at = t
         self.world_alignment = WorldAlignment(np.eye(3), np.zeros(3), camera, geo.rotation_sigma_rad, geo.translation_sigma_m, 0.0)
+        self.gps_monitor.without_fixes()
         self.map_georeference = None
         self.world_changes += 1
         self.status = f"initialised at {t:.3f} s from the saved map's georeference: scale {geo.scale:.4g} m per map unit"

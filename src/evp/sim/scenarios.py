@@ -52,9 +52,14 @@ class SimOptions(BaseModel):
     speed_m_s: float | None = Field(None, gt=0)
     pattern: str | None = Field(None, pattern="^(lawnmower|loops|free)$")
     area_m: tuple[float, float] | None = None
+    ground_half_m: float | None = Field(
+        None,
+        gt=0,
+        description="drone-flight: half the side of the textured ground, m (None: the flown path's extent plus a footprint, at least 60); the texture depends on it, so flights over one world give the same",
+    )
     takeoff_m: tuple[float, float] = Field(
         (0.0, 0.0),
-        description="drone-flight: take-off point (x, y) in m from the world's origin; the world (ground, relief, GPS origin) stays the same: a second flight over the area from elsewhere",
+        description="drone-flight: take-off point (x, y) in m from the world's origin; with the same ground_half_m the world (ground, relief, GPS origin) stays the same: a second flight over the area from elsewhere",
     )
     gimbal: bool = Field(False, description="camera held level (nadir) by a gimbal instead of fixed to the body")
     relief: bool = Field(True, description="buildings and trees on the ground (drone scenarios)")
@@ -209,7 +214,7 @@ def drone_flight(options: SimOptions) -> Scenario:
     landing = paths.walk_polyline(np.array([samples[-1], [*samples[-1, :2], 0.0]]), climb)
     samples = paths.fit_duration(paths.smooth(np.vstack([samples, landing, paths.hold([*samples[-1, :2], 0.0], 2.0)]), 1.5), duration)
     times = np.arange(len(samples)) * paths.SAMPLE_DT
-    half = max(np.abs(samples[:, :2]).max() + footprint, 60.0)
+    half = options.ground_half_m or max(np.abs(samples[:, :2]).max() + footprint, 60.0)
     ground = _ground(options, "rich", half, max(0.04, altitude / camera.fx / 1.5))
     quads = [ground] + (_relief(rng, half, 25.0, options.seed) if options.relief else [])
     return Scenario(

@@ -8,7 +8,9 @@ optimisation; when lost, relocalisation against the keyframes (the map is never 
 poses are stored relative to their reference keyframe, so the final trajectory follows the
 keyframes refined by bundle adjustment (as ORB-SLAM saves it), while the live answer is the pose
 known at that moment. Frames fed before initialisation are localised against the final map
-for the refined trajectory too (``slam.start_backfill_frames``).
+for the refined trajectory too (``slam.start_backfill_frames``). Started from a saved map
+(``initial_map``), it relocalises in it instead of initialising, and starts a map of its own only
+after ``slam.map_relocalise_timeout_s`` without finding it.
 """
 
 from __future__ import annotations

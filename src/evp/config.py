@@ -124,6 +124,15 @@ class SlamSettings(_Section):
         "", description="bag-of-words vocabulary file for place recognition ('' = the one shipped, trained on EVP's renders; evp vocabulary build)"
     )
     loop_min_matches: int = Field(40, ge=20, description="map point matches that confirm a loop")
+    map: str = Field(
+        "",
+        description="a map saved by an earlier run (its map.npz) to start from: tracking relocalises in it instead of initialising, and a georeferenced map georeferences the run at once ('' = start a new map)",
+    )
+    map_relocalise_timeout_s: float = Field(
+        60.0,
+        gt=0,
+        description="with slam.map: seconds without relocalising in it before SLAM gives up and starts a new map (a vehicle waits on its pad for a minute; a take-off climbs into the mapped altitudes within seconds)",
+    )
     final_bundle_adjustment: bool = Field(
         True,
         description="offline runs: one global bundle adjustment of the whole map before trajectory.tum is written (trajectory_live.tum keeps the live poses)",
@@ -195,6 +204,11 @@ class NavigationSettings(_Section):
     )
     initial_position_sigma_m: float = Field(1.0, gt=0, description="initial position uncertainty (1 sigma, per axis)")
     initial_velocity_sigma_m_s: float = Field(0.5, gt=0)
+    saved_map_velocity_sigma_m_s: float = Field(
+        10.0,
+        gt=0,
+        description="started from a saved map's georeference, the filter's velocity is unknown (zero, this sigma per axis: a multirotor's cruise); the visual poses give it within a second",
+    )
     initial_attitude_sigma_rad: float = Field(0.05, gt=0, description="initial roll/pitch/yaw uncertainty")
     initial_yaw_sigma_rad: float = Field(3.2, gt=0, description="initial heading uncertainty: unknown (about pi) until GPS or a map says")
     initial_gyro_bias_sigma: float = Field(0.01, gt=0, description="rad/s")

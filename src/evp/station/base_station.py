@@ -6,14 +6,16 @@ The web layer (``evp.station.server``) only translates HTTP and WebSocket traffi
 from __future__ import annotations
 
 import asyncio
-import hmac
 import json
+import os
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from evp import __version__
 from evp.config import Settings
+from evp.station.auth import DEV, Credentials, Identity
 from evp.station.protocol import PROTOCOL_VERSION, Config, GpsTelemetry, Hello, Pose, ProtocolError
 from evp.station.recording import has_summary, repair
 from evp.station.session import LiveSession
@@ -32,19 +34,21 @@ def default_camera(settings: Settings) -> CameraModel:
 
 
 class Station:
-    def __init__(self, data_dir: Path, settings: Settings, db_url: str | None = None, token: str = "", mavlink_url: str | None = None):
+    def __init__(self, data_dir: Path, settings: Settings, db_url: str | None = None, mavlink_url: str | None = None):
         self.data_dir = Path(data_dir)
         self.data_dir.mkdir(parents=True, exist_ok=True)
         self.settings = settings
         self.camera = default_camera(settings)
-        self.token = token
         self.store = SessionStore(db_url or f"sqlite:///{(self.data_dir / 'evp.sqlite').resolve()}")
+        self.credentials = Credentials(self.store.engine)
+        self.link_closers: dict[str, Callable[[], None]] = {}  # session id -> close its current link (a resume by its owner)
         self.sessions: dict[str, LiveSession] = {}
         self.operators: set[asyncio.Queue] = set()
         self.link: dict = {}
         self.mavlink: MavlinkRoutes | None = None
         self.mavlink_url = mavlink_url
         self._generations: dict[str, int] = {}
+        self._full: set[str] = set()  # sessions whose estimator is the configured one (not degraded)
         self._status_task: asyncio.Task | None = None
 
     # --- lifecycle ------------------------------------------------------------------------------
@@ -86,39 +90,71 @@ class Station:
 
     # --- mobile stations ------------------------------------------------------------------------
 
-    def check_hello(self, hello: Hello) -> None:
+    def check_hello(self, hello: Hello) -> Identity:
+        """The mobile station a hello comes from (blocking: a database read; call from a thread)."""
         if hello.protocol != PROTOCOL_VERSION:
             raise ProtocolError("bad_version", f"client speaks protocol {hello.protocol}, this station speaks {PROTOCOL_VERSION}")
-        if self.token and not hmac.compare_digest(hello.token.encode(), self.token.encode()):
-            raise ProtocolError("bad_token", "missing or wrong token" if hello.token else "this station needs a token (hello.token)")
+        if self.settings.station.dev_loopback:
+            return DEV
+        identity = self.credentials.identify(hello.token) if hello.token else None
+        if identity is None or not identity.may("mobile"):
+            raise ProtocolError("bad_token", "this station needs the credential this device got when it paired (scan the station's QR code)")
+        return identity
 
-    def open_session(self, hello: Hello) -> tuple[LiveSession, bool]:
-        """A new session, or the one ``hello.resume`` names (kept in memory or reopened from disk)."""
+    def open_session(self, hello: Hello, identity: Identity) -> tuple[LiveSession, bool]:
+        """A new session, or the one ``hello.resume`` names (kept in memory or reopened from disk)
+        when ``identity`` opened it: another device gets the same answer as for a session that
+        does not exist. A resume while the old link still looks up (it died without a close)
+        closes that link: the phone is back at once."""
         if hello.resume:
             session = self.sessions.get(hello.resume)
+            owner = session.owner if session is not None else (self.store.session(hello.resume) or {}).get("owner")
+            if owner is None or owner != identity.credential_id:
+                raise ProtocolError("unknown_session", f"no session {hello.resume!r} of this device to resume")
             if session is None:
+                self._make_room()
                 row = self.store.session(hello.resume)
-                if row is None:
-                    raise ProtocolError("unknown_session", f"no session {hello.resume!r} to resume")
                 session = LiveSession(row["id"], row["device"], self.store, Path(row["mcap_path"]), self, self.settings.station.estimate_on_connect)
+                session.owner = owner
                 session.continue_from(self.store.rows("frames", session.id))
                 self.sessions[session.id] = session
             if session.connected:
-                raise ProtocolError("not_ready", f"session {hello.resume} is already connected")
-            session.event("info", "resumed", f"session resumed by {hello.device or 'a mobile station'}")
+                self.link_closers.pop(session.id, lambda: None)()
+                session.detach(clean=False)
+            session.event("info", "resumed", f"session resumed by {hello.device or 'a mobile station'} (credential {identity.credential_id or 'none'})")
             return session, True
+        self._make_room()
         recordings = self.data_dir / "sessions"
-        session_id = self.store.create_session(hello.device, "")
+        session_id = self.store.create_session(hello.device, "", identity.credential_id)
         path = recordings / f"{session_id}.mcap"
         self.store.update_session(session_id, mcap_path=str(path.resolve()))
         session = LiveSession(session_id, hello.device, self.store, path, self, self.settings.station.estimate_on_connect)
+        session.owner = identity.credential_id
         self.sessions[session_id] = session
-        session.event("info", "connected", f"mobile station {hello.device or '(unnamed)'} connected")
+        session.event("info", "connected", f"mobile station {hello.device or '(unnamed)'} connected (credential {identity.credential_id or 'none'})")
         return session, False
+
+    def _make_room(self) -> None:
+        """At ``station.max_sessions``: release the interrupted session that waited longest, else refuse."""
+        cap = self.settings.station.max_sessions
+        if len(self.sessions) < cap:
+            return
+        waiting = [s for s in self.sessions.values() if not s.connected and s.disconnected_at is not None]
+        if not waiting:
+            raise ProtocolError("busy", f"the station has {cap} live sessions (station.max_sessions); try again later")
+        oldest = min(waiting, key=lambda s: s.disconnected_at)
+        asyncio.get_running_loop().create_task(self._release(oldest, f"released to make room for a new session ({cap} at most)"))
+        self.sessions.pop(oldest.id, None)
+
+    def full_estimator_slots(self) -> int:
+        """Sessions that may run the configured estimator at once; beyond, the light VO."""
+        configured = self.settings.station.full_estimators
+        return configured if configured is not None else (os.cpu_count() or 1)
 
     async def end_session(self, session: LiveSession) -> None:
         await session.close("ended")
         self.sessions.pop(session.id, None)
+        self._full.discard(session.id)
         if self.mavlink is not None:
             self.mavlink.release(session.id)
         self.broadcast({"type": "sessions"})
@@ -157,8 +193,17 @@ class Station:
 
     # --- StationHooks -------------------------------------------------------------------------
 
-    def settings_json(self) -> str:
-        return self.settings.model_dump_json()
+    def estimator_settings(self, session: LiveSession) -> tuple[str, str]:
+        """The settings a session's new estimator runs with, and why they are lighter than the
+        operator's when they are: past ``full_estimator_slots`` sessions (one per core by
+        default) a session gets the light VO, so every session keeps a usable pose rate instead
+        of all of them collapsing together (issue 34: 0.9 poses/s each for eight SLAM clients)."""
+        slots = self.full_estimator_slots()
+        if self.settings.estimator not in ("auto", "slam") or session.id in self._full or len(self._full) < slots:
+            self._full.add(session.id)
+            return self.settings.model_dump_json(), ""
+        light = self.settings.model_copy(update={"estimator": "klt-vo"})
+        return light.model_dump_json(), f"station at capacity ({slots} sessions with the full estimator): this session runs the light VO (klt-vo)"
 
     def on_pose(self, session: LiveSession, pose: Pose, latency_ms: float) -> None:
         self.broadcast({"type": "pose", "session_id": session.id, "pose": pose.model_dump(), "latency_ms": latency_ms})
@@ -218,17 +263,18 @@ class Station:
                     session.reply(session.status())
                     self.store.update_session(session.id, **session.count_columns())
                 elif time.monotonic() - session.disconnected_at > self.settings.station.resume_window_s:
-                    await self._release(session)
+                    window = self.settings.station.resume_window_s
+                    await self._release(session, f"not resumed within {window:g} s: estimator stopped, recording closed")
                     continue
                 self.on_status(session)
 
-    async def _release(self, session: LiveSession) -> None:
+    async def _release(self, session: LiveSession, why: str) -> None:
         """An interrupted session nobody resumed: free its estimator process, close its recording.
         A later resume reopens it from disk with a new map."""
         self.sessions.pop(session.id, None)
+        self._full.discard(session.id)
         await session.close("interrupted")
         if self.mavlink is not None:
             self.mavlink.release(session.id)
-        window = self.settings.station.resume_window_s
-        session.event("info", "released", f"not resumed within {window:g} s: estimator stopped, recording closed")
+        session.event("info", "released", why)
         self.broadcast({"type": "sessions"})

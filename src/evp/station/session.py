@@ -8,6 +8,7 @@ or a failing estimator never loses what was received.
 
 from __future__ import annotations
 
+import asyncio
 import json
 import time
 from collections import deque
@@ -49,7 +50,7 @@ class StationHooks(Protocol):
 
     settings: Settings
 
-    def settings_json(self) -> str: ...
+    def estimator_settings(self, session: LiveSession) -> tuple[str, str]: ...
     def on_pose(self, session: LiveSession, pose: Pose, latency_ms: float) -> None: ...
     def on_event(self, session: LiveSession, event: dict) -> None: ...
     def on_status(self, session: LiveSession) -> None: ...
@@ -78,9 +79,15 @@ class LiveSession:
     def __init__(self, session_id: str, device: str, store: SessionStore, recording_path: Path, station: StationHooks, estimating: bool = True):
         self.id = session_id
         self.device = device
+        self.owner = ""  # the credential id that opened it (evp.station.auth)
         self.store = store
         self.station = station
         self.recording = SessionRecording(recording_path)
+        self.recorded_bytes = recording_path.stat().st_size if recording_path.is_file() else 0  # against station.session_quota_bytes
+        self.degraded = ""  # why this session runs a lighter estimator than configured, when it does
+        self._estimator_start: asyncio.Task | None = None
+        self._quota_told = False
+        self._closed = False
         self.camera: CameraModel | None = None  # named after the device
         self.T_body_cam: list[float] | None = None  # the camera in the IMU frame (config), for the navigation stage
         self.answers = "at_once"
@@ -222,7 +229,11 @@ class LiveSession:
         except ProtocolError as exc:
             self.refuse(exc)
             return
+        if self.recorded_bytes + len(data) > self.station.settings.station.session_quota_bytes:
+            self._over_quota(message)
+            return
         self.recording.image(message, now)
+        self.recorded_bytes += len(data)
         self.counters.frames_received += 1
         try:
             self._check_frame(message)
@@ -239,6 +250,17 @@ class LiveSession:
         self._frames[message.seq] = message
         self._send_telemetry()
         self.worker.submit(message)
+
+    def _over_quota(self, message: ImageMessage) -> None:
+        """Refused, not recorded: the operator hears it once, the phone for every frame."""
+        quota = self.station.settings.station.session_quota_bytes
+        error = ProtocolError("busy", f"this session's recording reached its quota of {quota / 2**20:.0f} MiB (station.session_quota_bytes)", message.seq)
+        if not self._quota_told:
+            self._quota_told = True
+            self.refuse(error)
+        else:
+            self.reply(Error(code=error.code, message=error.message, seq=error.seq))
+        self.counters.frames_dropped += 1
 
     def _send_telemetry(self) -> None:
         """The telemetry since the last frame, in one message: the estimator process's link thread
@@ -278,21 +300,35 @@ class LiveSession:
     # --- estimator ----------------------------------------------------------------------------
 
     def restart_estimator(self) -> None:
-        """A fresh estimator (new map) for the current camera; the old one finishes in the background."""
-        import asyncio
-
+        """A fresh estimator (new map) for the current camera. One process per session, ever: the
+        new one starts once the old one has finished (its frame in flight answered); configs that
+        arrive meanwhile change what it starts with, not how many start."""
         old, self.worker = self.worker, None
-        if old is not None:
-            asyncio.get_running_loop().create_task(old.close())
+        if self._estimator_start is not None and not self._estimator_start.done():
+            return  # the start under way reads the newest camera and settings when it gets there
+        if old is None:
+            self._start_estimator()
+        else:
+            self._estimator_start = asyncio.get_running_loop().create_task(self._replace_estimator(old))
+            self.reply(Status(state="starting", estimating=self.estimating, message="estimator restarting"))
+
+    async def _replace_estimator(self, old: EstimatorProcess) -> None:
+        await old.close()
+        if not self._closed and self.worker is None:
+            self._start_estimator()
+
+    def _start_estimator(self) -> None:
         if self.camera is None:
             return
-        settings_json = self.station.settings_json()
+        settings_json, self.degraded = self.station.estimator_settings(self)
         self.store.insert("settings", session_id=self.id, t=time.time(), source="server", data_json=settings_json)
         events = ProcessEvents(self._worker_ready, self._worker_pose, self._worker_error, self._worker_dropped, self._worker_exit, self._worker_report)
         args = (self.camera, settings_json, self.T_body_cam, self.answers)
         self.worker = EstimatorProcess(worker_main, args, events, every_message=self.answers == "at_once")
         self.station.on_new_map(self)
-        self.reply(Status(state="starting", estimating=self.estimating, message="estimator starting"))
+        if self.degraded:
+            self.event("warning", "degraded", self.degraded)
+        self.reply(Status(state="starting", estimating=self.estimating, message=self.degraded or "estimator starting"))
 
     def set_estimating(self, enabled: bool, by: str) -> None:
         if enabled == self.estimating:
@@ -368,6 +404,7 @@ class LiveSession:
             frames_dropped=c.frames_dropped,
             fps=round(c.fps(time.time()), 2),
             latency_ms_p50=round(c.latency_p50(), 2),
+            message=self.degraded,
         )
 
     def count_columns(self) -> dict:
@@ -376,7 +413,10 @@ class LiveSession:
 
     async def close(self, status: str) -> None:
         """Finish the estimator (frames in flight get their poses recorded) and the recording."""
+        self._closed = True
         self._send_telemetry()
+        if self._estimator_start is not None:
+            await self._estimator_start  # a replacement under way finishes (or starts nothing once ended)
         if self.worker is not None:
             await self.worker.close()
             self.worker = None

@@ -99,17 +99,21 @@ def http_json(station: RunningStation, method: str, path: str, body=None, header
             return exc.code, {"error": text.decode(errors="replace")}
 
 
-def operator_credential(station: RunningStation) -> str:
-    """Log in as the operator: a one-time code from the station's database (as ``evp
-    pairing-code --role operator`` makes it), traded for the operator's credential."""
+def operator_login_code(station: RunningStation) -> str:
+    """A one-time operator code from the station's database, as ``evp pairing-code --role operator`` makes it."""
     from evp.station.auth import Credentials
     from evp.station.store import SessionStore
 
     store = SessionStore(f"sqlite:///{station.data / 'evp.sqlite'}")
     try:
-        code = Credentials(store.engine).issue_code("operator", 60)
+        return Credentials(store.engine).issue_code("operator", 60)
     finally:
         store.close()
+
+
+def operator_credential(station: RunningStation) -> str:
+    """Log in as the operator: a one-time code traded for the operator's credential."""
+    code = operator_login_code(station)
     status, body = http_json(station, "POST", "/api/pair", {"code": code, "device": "test operator"})
     assert status == 200 and body["role"] == "operator", body
     return body["credential"]

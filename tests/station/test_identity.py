@@ -16,11 +16,11 @@ import pytest
 import websockets
 
 from evp.io.registry import open_dataset
-from evp.station.protocol import PROTOCOL_VERSION, Hello, encode, encode_image
+from evp.station.protocol import PROTOCOL_VERSION, Hello, encode
 from evp.station.store import SessionStore
 from tests.conftest import SAMPLE
 from tests.station.conftest import OperatorFeed, committed, http_json, insecure_tls, mobile_credential, operator_credential, running_station
-from tests.station.test_faults import _connect, _open_session, _stream_until_posed, _until
+from tests.station.test_faults import _connect, _open_session, _stream_until_posed
 
 
 @pytest.fixture(scope="module")

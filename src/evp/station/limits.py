@@ -77,7 +77,8 @@ def guarded_http_protocol(settings: StationSettings, clock: Callable[[], float] 
             return self.cycle is None or self.cycle.response_complete
 
         def _headers_overdue(self) -> None:
-            if self.cycle is None and not self.transport.is_closing():
+            upgraded = self.transport.get_protocol() is not self  # a WebSocket now: not ours to time out
+            if self.cycle is None and not upgraded and not self.transport.is_closing():
                 self.transport.abort()
 
         def connection_lost(self, exc) -> None:
@@ -91,6 +92,20 @@ def guarded_http_protocol(settings: StationSettings, clock: Callable[[], float] 
         return OpenConnection(client, waiting, getattr(connection, "accepted_at", 0.0), connection)
 
     return GuardedH11Protocol
+
+
+def dead_link_aware_websocket_protocol():
+    """uvicorn's WebSocket protocol, but a link whose pong does not come is dropped at once.
+    uvicorn closes it politely; over TLS that waits for the peer's close_notify, which a dead
+    peer never sends (asyncio gives up after 30 s), and until then the session looks connected."""
+    from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
+
+    class DeadLinkAwareProtocol(WebSocketsSansIOProtocol):
+        def keepalive_timeout(self) -> None:
+            super().keepalive_timeout()
+            self.transport.abort()
+
+    return DeadLinkAwareProtocol
 
 
 class BodyLimit:

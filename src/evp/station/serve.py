@@ -8,7 +8,7 @@ from pathlib import Path
 from evp.config import Settings
 from evp.errors import UsageError
 from evp.station.base_station import Station
-from evp.station.limits import guarded_http_protocol, limit_logs
+from evp.station.limits import dead_link_aware_websocket_protocol, guarded_http_protocol, limit_logs
 from evp.station.protocol import MAX_IMAGE_BYTES
 from evp.station.server import create_app
 from evp.station.tls import ensure_certificate, fingerprint, local_addresses
@@ -71,6 +71,7 @@ def serve(host: str, port: int, data_dir: Path, settings: Settings, db_url: str 
         ssl_certfile=str(cert) if cert else None,
         ssl_keyfile=str(key) if key else None,
         http=guarded_http_protocol(limits),
+        ws=dead_link_aware_websocket_protocol(),
         ws_max_size=2 * MAX_IMAGE_BYTES,  # up to twice the limit still gets a specific 'oversized' error
         ws_ping_interval=limits.heartbeat_interval_s,  # a dead link (no close frame) is seen within heartbeat_timeout_s
         ws_ping_timeout=limits.heartbeat_timeout_s - limits.heartbeat_interval_s,

@@ -9,11 +9,13 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import shutil
 import signal
 import socket
 import ssl
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import urllib.error
@@ -225,3 +227,23 @@ def run_stream(*args: str, timeout: float = 300) -> dict:
 @pytest.fixture
 def station_data(tmp_path) -> Path:
     return tmp_path / "station"
+
+
+@pytest.fixture(scope="session")
+def postgres_url() -> Iterator[str]:
+    """A real PostgreSQL server for this test session (scripts/postgres.sh: Debian's package,
+    installed when missing and possible); the tests that use it skip when it cannot start."""
+    pytest.importorskip("psycopg")
+    script = Path(__file__).resolve().parents[2] / "scripts" / "postgres.sh"
+    folder = Path(tempfile.mkdtemp(prefix="evp-postgres-"))
+    folder.chmod(0o755)  # the server runs as 'postgres' when the tests run as root
+    data = folder / "data"
+    started = subprocess.run(["bash", str(script), "start", str(data), str(free_port())], capture_output=True, text=True, timeout=600)
+    if started.returncode != 0:
+        shutil.rmtree(folder, ignore_errors=True)
+        pytest.skip(f"no PostgreSQL server: {(started.stderr or started.stdout).strip().splitlines()[-1:]}")
+    try:
+        yield started.stdout.strip().splitlines()[-1]
+    finally:
+        subprocess.run(["bash", str(script), "stop", str(data)], capture_output=True, timeout=120)
+        shutil.rmtree(folder, ignore_errors=True)

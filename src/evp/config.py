@@ -463,6 +463,11 @@ class StationSettings(_Section):
         ge=0,
         description="sessions estimating with the configured estimator at once (None: one per CPU core); sessions beyond it get the light VO (klt-vo), and the phone and the operator are told: even degradation instead of every session collapsing",
     )
+    overload_lag_s: float = Field(
+        0.25, gt=0, description="the station's event loop this late on its 1 s tick means CPU overload: every session gets the same, lower frame rate"
+    )
+    overload_min_fps: float = Field(5.0, gt=0, description="under overload no session is capped below this frame rate")
+    overload_recover_s: float = Field(10.0, gt=0, description="this long without lag before the overload cap starts to rise again")
     log_burst: int = Field(20, ge=1, description="the same log message at most this many times per log_window_s; the rest are counted and summarised")
     log_window_s: float = Field(10.0, gt=0)
 

@@ -222,3 +222,21 @@ def test_a_dead_link_is_seen_within_three_seconds_and_the_owner_resumes_at_once(
         detected_s = time.monotonic() - silent_since
     print(f"dead link seen after {detected_s:.2f} s")
     assert detected_s < 4.5  # heartbeat_timeout_s (3 s) and the test's own scheduling
+
+
+def test_overload_caps_every_session_alike_and_lifts_the_cap_once_calm():
+    from evp.config import StationSettings
+    from evp.station.overload import LoadGovernor
+
+    governor = LoadGovernor(StationSettings(overload_lag_s=0.25, overload_min_fps=5.0, overload_recover_s=10.0))
+    assert governor.tick(0.0, 0.01, [30.0] * 8, 30.0) is False  # keeping up: no cap
+    assert governor.tick(1.0, 0.8, [30.0] * 8, 30.0) == 21.0  # behind: 70 % of the mean rate, for everyone
+    assert governor.tick(2.0, 0.6, [21.0] * 8, 30.0) == 14.7  # still behind: lower
+    assert governor.tick(3.0, 0.6, [14.7] * 8, 30.0) == 10.3
+    assert governor.tick(4.0, 0.6, [10.3] * 8, 30.0) == 7.2
+    assert governor.tick(5.0, 0.6, [7.2] * 8, 30.0) == 5.0  # never below overload_min_fps
+    assert governor.tick(6.0, 0.6, [5.0] * 8, 30.0) is False
+    assert governor.tick(7.0, 0.01, [5.0] * 8, 30.0) is False  # calm, but not for long enough
+    assert governor.tick(17.0, 0.01, [5.0] * 8, 30.0) == 6.2  # calm for 10 s: up a quarter a tick
+    caps = [governor.tick(18.0 + k, 0.01, [5.0] * 8, 30.0) for k in range(8)]
+    assert caps[-1] is None and governor.cap_fps is None  # lifted once it reaches the full rate

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 from evp import __version__
 from evp.config import Settings
 from evp.station.auth import DEV, Credentials, Identity
+from evp.station.overload import LoadGovernor
 from evp.station.protocol import PROTOCOL_VERSION, Config, GpsTelemetry, Hello, Pose, ProtocolError
 from evp.station.recording import has_summary, repair
 from evp.station.session import LiveSession
@@ -49,6 +50,8 @@ class Station:
         self.mavlink_url = mavlink_url
         self._generations: dict[str, int] = {}
         self._full: set[str] = set()  # sessions whose estimator is the configured one (not degraded)
+        self.governor = LoadGovernor(settings.station)
+        self._frames_counted: dict[str, int] = {}  # frames received per session at the last tick
         self._status_task: asyncio.Task | None = None
 
     # --- lifecycle ------------------------------------------------------------------------------
@@ -149,7 +152,7 @@ class Station:
     def full_estimator_slots(self) -> int:
         """Sessions that may run the configured estimator at once; beyond, the light VO."""
         configured = self.settings.station.full_estimators
-        return configured if configured is not None else (os.cpu_count() or 1)
+        return configured if configured is not None else len(os.sched_getaffinity(0))
 
     async def end_session(self, session: LiveSession) -> None:
         await session.close("ended")
@@ -256,8 +259,11 @@ class Station:
         }
 
     async def _status_loop(self) -> None:
+        loop = asyncio.get_running_loop()
         while True:
+            expected = loop.time() + 1.0
             await asyncio.sleep(1.0)
+            self._govern(loop.time() - expected)
             for session in list(self.sessions.values()):
                 if session.connected:
                     session.reply(session.status())
@@ -267,6 +273,23 @@ class Station:
                     await self._release(session, f"not resumed within {window:g} s: estimator stopped, recording closed")
                     continue
                 self.on_status(session)
+
+    def _govern(self, lag_s: float) -> None:
+        """The overload governor's tick (evp.station.overload): one frame rate for every session."""
+        counted, self._frames_counted = self._frames_counted, {s.id: s.counters.frames_received for s in self.sessions.values()}
+        rates = [n - counted[i] for i, n in self._frames_counted.items() if i in counted and n > counted[i] and self.sessions[i].connected]
+        cap = self.governor.tick(time.monotonic(), lag_s, rates, self.settings.camera.fps)
+        if cap is False:
+            return
+        config = self.config_for_mobile()
+        for session in self.sessions.values():
+            session.max_fps = cap
+            session.reply(config if cap is None else config.model_copy(update={"fps": cap}))
+        if cap is None:
+            text = f"load back to normal: mobile stations may stream at {config.fps:g} fps again"
+        else:
+            text = f"CPU overload (the station ran {lag_s * 1000:.0f} ms late): every mobile station capped at {cap:g} fps, frames above it dropped"
+        self.on_event(None, self.store.log_event(None, "warning" if cap else "info", "overload", text))
 
     async def _release(self, session: LiveSession, why: str) -> None:
         """An interrupted session nobody resumed: free its estimator process, close its recording.

@@ -94,14 +94,27 @@ def guarded_http_protocol(settings: StationSettings, clock: Callable[[], float] 
     return GuardedH11Protocol
 
 
-def dead_link_aware_websocket_protocol():
-    """uvicorn's WebSocket protocol, but a link whose pong does not come is dropped at once.
-    uvicorn closes it politely; over TLS that waits for the peer's close_notify, which a dead
-    peer never sends (asyncio gives up after 30 s), and until then the session looks connected."""
+def dead_link_aware_websocket_protocol(silence_s: float):
+    """uvicorn's WebSocket protocol with another rule for its ping timeout: a link is dead when
+    nothing at all came from it for ``silence_s`` (station.heartbeat_timeout_s), pongs or
+    anything else. A pong that is merely late (it waits behind the phone's own frames, or a
+    busy machine ran the phone late) does not cut a healthy link. A dead link is dropped at
+    once: uvicorn closes it politely, and over TLS that waits for the peer's close_notify, which
+    a dead peer never sends (asyncio gives up after 30 s)."""
     from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
 
     class DeadLinkAwareProtocol(WebSocketsSansIOProtocol):
+        heard_at = 0.0
+
+        def data_received(self, data: bytes) -> None:
+            self.heard_at = self.loop.time()
+            super().data_received(data)
+
         def keepalive_timeout(self) -> None:
+            silent_s = self.loop.time() - self.heard_at
+            if silent_s < silence_s:
+                self.pong_timer = self.loop.call_later(silence_s - silent_s, self.keepalive_timeout)
+                return
             super().keepalive_timeout()
             self.transport.abort()
 

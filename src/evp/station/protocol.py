@@ -237,7 +237,7 @@ class Dropped(_Message):
 
     type: Literal["dropped"] = "dropped"
     seq: int
-    reason: Literal["stale", "estimation_off", "not_configured", "closing"]
+    reason: Literal["stale", "estimation_off", "not_configured", "closing", "overload"]
 
 
 class Log(_Message):

@@ -71,9 +71,9 @@ def serve(host: str, port: int, data_dir: Path, settings: Settings, db_url: str 
         ssl_certfile=str(cert) if cert else None,
         ssl_keyfile=str(key) if key else None,
         http=guarded_http_protocol(limits),
-        ws=dead_link_aware_websocket_protocol(),
+        ws=dead_link_aware_websocket_protocol(limits.heartbeat_timeout_s),  # a dead link (no close frame) is seen within heartbeat_timeout_s
         ws_max_size=2 * MAX_IMAGE_BYTES,  # up to twice the limit still gets a specific 'oversized' error
-        ws_ping_interval=limits.heartbeat_interval_s,  # a dead link (no close frame) is seen within heartbeat_timeout_s
+        ws_ping_interval=limits.heartbeat_interval_s,
         ws_ping_timeout=limits.heartbeat_timeout_s - limits.heartbeat_interval_s,
         log_level="warning",
         lifespan="on",

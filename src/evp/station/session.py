@@ -87,6 +87,8 @@ class LiveSession:
         self.degraded = ""  # why this session runs a lighter estimator than configured, when it does
         self._estimator_start: asyncio.Task | None = None
         self._quota_told = False
+        self.max_fps: float | None = None  # the overload governor's cap (evp.station.overload)
+        self._accepted_at = -np.inf  # receive time of the last frame under that cap
         self._closed = False
         self.camera: CameraModel | None = None  # named after the device
         self.T_body_cam: list[float] | None = None  # the camera in the IMU frame (config), for the navigation stage
@@ -232,6 +234,10 @@ class LiveSession:
         if self.recorded_bytes + len(data) > self.station.settings.station.session_quota_bytes:
             self._over_quota(message)
             return
+        if self.max_fps is not None and now - self._accepted_at < 0.9 / self.max_fps:  # shed before it costs anything
+            self._drop(message, "overload")
+            return
+        self._accepted_at = now
         self.recording.image(message, now)
         self.recorded_bytes += len(data)
         self.counters.frames_received += 1

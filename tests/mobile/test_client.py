@@ -1,6 +1,7 @@
 """The Python streaming client against a real ``evp serve`` over loopback TLS: every frame sent
 gets its pose back, a resumed session continues its numbering, and a refused token or a
-certificate other than the pinned one is a clear StreamError."""
+certificate other than the pinned one is a clear StreamError; pairing keeps the device's
+credential in a file only its owner reads."""
 
 from __future__ import annotations
 
@@ -10,24 +11,38 @@ import itertools
 import pytest
 
 from evp.mobile.client import StreamClient, StreamError, StreamReport, mobile_url
+from evp.mobile.pairing import device_credential
 from evp.mobile.sources import open_source
 from evp.station.protocol import Pose
 from evp.types import TrackingState
 from tests.conftest import SAMPLE
-from tests.station.conftest import OperatorFeed, running_station
+from tests.station.conftest import OperatorFeed, http_json, operator_credential, running_station
 
-TOKEN = "m0bile"
+CREDENTIALS: dict[str, str] = {}  # the module station's operator and paired device
 
 
 @pytest.fixture(scope="module")
 def station(tmp_path_factory):
-    with running_station(tmp_path_factory.mktemp("mobile") / "station", "--token", TOKEN) as running:
+    folder = tmp_path_factory.mktemp("mobile")
+    with running_station(folder / "station", paired=True) as running:
+        CREDENTIALS["operator"] = operator_credential(running)
+        code = http_json(running, "POST", "/api/pairing", {"role": "mobile"}, credential=CREDENTIALS["operator"])[1]["code"]
+        CREDENTIALS["device"] = device_credential(running.url, code, folder / "credentials" / "station")
         yield running
 
 
-def _stream(url: str, frames: range, token: str = TOKEN, resume: str | None = None, fingerprint: str | None = None) -> StreamReport:
+def test_pairing_keeps_the_credential_private_and_reuses_it(station, tmp_path):
+    kept = next((p for p in station.data.parent.glob("credentials/*")), None)
+    assert kept is not None and kept.stat().st_mode & 0o077 == 0 and kept.read_text() == CREDENTIALS["device"]
+    assert device_credential(station.url, None, kept) == CREDENTIALS["device"]  # later runs read it
+    assert device_credential(station.url, None, tmp_path / "none") == ""  # none kept: the station will say bad_token
+    with pytest.raises(StreamError, match="refused the pairing code"):
+        device_credential(station.url, "used-or-made-up", tmp_path / "other")
+
+
+def _stream(url: str, frames: range, token: str | None = None, resume: str | None = None, fingerprint: str | None = None) -> StreamReport:
     """Stream the sample's ``frames`` (a resumed session goes on from where its link ended)."""
-    client = StreamClient(url, token=token, fingerprint=fingerprint, log=lambda text: None)
+    client = StreamClient(url, token=CREDENTIALS["device"] if token is None else token, fingerprint=fingerprint, log=lambda text: None)
     source = open_source(str(SAMPLE), max_frames=frames.stop)
     source.items = itertools.islice(source.items, frames.start, None)
     return asyncio.run(client.run(source, realtime=False, encoding="png", resume=resume))
@@ -52,7 +67,7 @@ def test_a_url_that_is_not_a_station_is_refused():
 
 
 def test_every_frame_gets_its_pose_and_a_resume_continues_the_numbering(station):
-    with OperatorFeed(station, TOKEN) as feed:
+    with OperatorFeed(station, CREDENTIALS["operator"]) as feed:
         report = _stream(station.http, range(12))
         assert report.session_id and report.fingerprint and len(report.fingerprint) == 95  # SHA-256, colon separated
         assert report.frames_sent == 12 and sorted(report.poses) == list(range(12)) and not report.errors

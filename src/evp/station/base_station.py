@@ -275,14 +275,20 @@ class Station:
                 self.on_status(session)
 
     def _govern(self, lag_s: float) -> None:
-        """The overload governor's tick (evp.station.overload): one frame rate for every session."""
-        counted, self._frames_counted = self._frames_counted, {s.id: s.counters.frames_received for s in self.sessions.values()}
-        rates = [n - counted[i] for i, n in self._frames_counted.items() if i in counted and n > counted[i] and self.sessions[i].connected]
+        """The overload governor's tick (evp.station.overload): one frame rate for every session
+        that streams at its own pace (answers at once: phones); a session answered after vision
+        keeps a bounded number of frames in flight, so it cannot outrun the station."""
+        paced = {s.id: s for s in self.sessions.values() if s.answers == "at_once"}
+        for session in self.sessions.values():
+            if session.id not in paced:
+                session.max_fps = None
+        counted, self._frames_counted = self._frames_counted, {i: s.counters.frames_received for i, s in paced.items()}
+        rates = [n - counted[i] for i, n in self._frames_counted.items() if i in counted and n > counted[i] and paced[i].connected]
         cap = self.governor.tick(time.monotonic(), lag_s, rates, self.settings.camera.fps)
         if cap is False:
             return
         config = self.config_for_mobile()
-        for session in self.sessions.values():
+        for session in paced.values():
             session.max_fps = cap
             session.reply(config if cap is None else config.model_copy(update={"fps": cap}))
         if cap is None:

@@ -72,17 +72,14 @@ class AccessGate:
         problem = self._cross_site(scope, headers) if state_changing else None
         if problem is None and scope["type"] == "http" and state_changing and headers.get("content-type", "").split(";")[0].strip() != "application/json":
             problem = (415, "a POST to the station must be application/json")
-        identity = None
-        if problem is None:
+        public = scope["path"] in PUBLIC_PATHS or scope["path"].startswith(PUBLIC_PREFIXES)
+        if problem is None and not public:  # the pages, static files, pairing and phones' link need no login
             identity = DEV if self.open_dev else await self._identify(headers)
-            path = scope["path"]
-            public = path in PUBLIC_PATHS or path.startswith(PUBLIC_PREFIXES)
-            if not public and (identity is None or not identity.may("operator")):
+            if identity is None or not identity.may("operator"):
                 problem = (401, "the operator's credential is needed (log in with the link evp serve printed)") if identity is None else (403, "operators only")
         if problem is not None:
             await self._refuse(scope, receive, send, *problem)
             return
-        scope.setdefault("state", {})["identity"] = identity
         await self.app(scope, receive, send)
 
     def _cross_site(self, scope, headers: dict[str, str]) -> tuple[int, str] | None:

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from evp.errors import ConfigError
 
@@ -434,7 +434,9 @@ class StationSettings(_Section):
     )
     estimate_on_connect: bool = Field(True, description="start estimating as soon as a mobile station is configured (else wait for the operator)")
     resume_window_s: float = Field(
-        300.0, gt=0, description="an interrupted session keeps its estimator (and map) this long for a reconnect; later it resumes with a new map"
+        60.0,
+        gt=0,
+        description="an interrupted session keeps its estimator (and map) this long for a reconnect; later it resumes with a new map (a dead link is seen within heartbeat_timeout_s, so a phone that comes back does so within seconds; 60 s frees the process and file of one that does not)",
     )
     vision_wait_s: float = Field(
         1.0,
@@ -446,6 +448,58 @@ class StationSettings(_Section):
         gt=0,
         description="telemetry whose time jumps further ahead than this (per kind) is an operator event (clock_jump): a phone's sensor clock reset, not a pause (GPS fixes come at >= 1 Hz)",
     )
+    pairing_code_ttl_s: float = Field(600.0, gt=0, le=86400, description="a one-time pairing code (QR code, operator login link) is void after this long")
+    dev_loopback: bool = Field(
+        False,
+        description="development only: no credentials at all (every client may stream and operate); the station then refuses to listen on anything but loopback",
+    )
+    allowed_origins: list[str] = Field(
+        default_factory=list,
+        description="web origins (scheme://host:port) besides the station's own that may open its WebSockets and POST to it (a reverse proxy's public address)",
+    )
+    heartbeat_interval_s: float = Field(
+        1.0, gt=0, description="the station sends a heartbeat message (for pages, which cannot see WebSocket pings) and a WebSocket ping this often"
+    )
+    heartbeat_timeout_s: float = Field(
+        3.0,
+        gt=0,
+        description="a link silent this long is dead (a Wi-Fi handover leaves no close frame): the station interrupts the session, a phone reconnects and resumes; must exceed heartbeat_interval_s",
+    )
+    # limits: one hostile or broken client must not starve the others (issue 34's measurements)
+    max_sessions: int = Field(
+        16, ge=1, description="live sessions (connected or awaiting a resume) at most; a new one first releases the oldest interrupted one"
+    )
+    max_connections: int = Field(
+        512, ge=8, description="open TCP connections at most (half of a usual 1024-descriptor limit: the rest is for recordings, estimator pipes, the database)"
+    )
+    max_connections_per_client: int = Field(64, ge=2, description="open TCP connections from one address at most")
+    header_timeout_s: float = Field(
+        10.0,
+        gt=0,
+        description="a connection must complete its request headers within this long (slow-header clients are closed, and evicted first when the station is full)",
+    )
+    max_body_bytes: int = Field(1024 * 1024, ge=1024, description="an HTTP request body larger than this is refused (413) before it is read")
+    session_quota_bytes: int = Field(
+        4 * 1024**3, ge=1024 * 1024, description="one session's recording may grow to this size; later frames are refused (quota) and not recorded"
+    )
+    full_estimators: int | None = Field(
+        None,
+        ge=0,
+        description="sessions estimating with the configured estimator at once (None: one per CPU core); sessions beyond it get the light VO (klt-vo), and the phone and the operator are told: even degradation instead of every session collapsing",
+    )
+    overload_lag_s: float = Field(
+        0.25, gt=0, description="the station's event loop this late on its 1 s tick means CPU overload: every session gets the same, lower frame rate"
+    )
+    overload_min_fps: float = Field(5.0, gt=0, description="under overload no session is capped below this frame rate")
+    overload_recover_s: float = Field(10.0, gt=0, description="this long without lag before the overload cap starts to rise again")
+    log_burst: int = Field(20, ge=1, description="the same log message at most this many times per log_window_s; the rest are counted and summarised")
+    log_window_s: float = Field(10.0, gt=0)
+
+    @model_validator(mode="after")
+    def _heartbeat_fits(self) -> StationSettings:
+        if self.heartbeat_timeout_s <= self.heartbeat_interval_s:
+            raise ValueError(f"heartbeat_timeout_s ({self.heartbeat_timeout_s:g}) must exceed heartbeat_interval_s ({self.heartbeat_interval_s:g})")
+        return self
 
 
 class EkfSlamSettings(_Section):

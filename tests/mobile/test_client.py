@@ -1,7 +1,8 @@
 """The Python streaming client against a real ``evp serve`` over loopback TLS: every frame sent
 gets its pose back, a resumed session continues at the station's next_seq, an ended session is
-final, and a refused token, an unverified certificate or one other than the pinned one is a clear
-StreamError; ``evp stream`` exits non-zero when the station refuses frames."""
+final, and a refused credential, an unverified certificate or one other than the pinned one is a
+clear StreamError; pairing keeps the device's credential in a file only its owner reads;
+``evp stream`` exits non-zero when the station refuses frames."""
 
 from __future__ import annotations
 
@@ -14,19 +15,28 @@ import sys
 import pytest
 
 from evp.mobile.client import StreamClient, StreamError, StreamReport, mobile_url
+from evp.mobile.pairing import device_credential
 from evp.mobile.sources import open_source
 from evp.station.protocol import Pose
 from evp.types import TrackingState
 from tests.conftest import SAMPLE
-from tests.station.conftest import OperatorFeed, running_station
+from tests.station.conftest import OperatorFeed, http_json, operator_credential, running_station
 
-TOKEN = "m0bile"
+CREDENTIALS: dict[str, str] = {}  # the module station's operator and paired device
 
 
 @pytest.fixture(scope="module")
 def station(tmp_path_factory):
-    with running_station(tmp_path_factory.mktemp("mobile") / "station", "--token", TOKEN) as running:
+    folder = tmp_path_factory.mktemp("mobile")
+    with running_station(folder / "station", paired=True) as running:
+        CREDENTIALS["operator"] = operator_credential(running)
+        code = http_json(running, "POST", "/api/pairing", {"role": "mobile"}, credential=CREDENTIALS["operator"])[1]["code"]
+        CREDENTIALS["device"] = device_credential(running.url, code, folder / "credentials" / "station", _cafile(running))
         yield running
+
+
+def _cafile(station) -> str:
+    return str(station.data / "tls" / "cert.pem")
 
 
 class LinkDied(Exception):
@@ -44,10 +54,21 @@ def _cut_after(items, frames: int):
         yield item
 
 
-def _stream(station, frames: int, token: str = TOKEN, resume: str | None = None, trust: dict | None = None, cut_after: int | None = None) -> StreamReport:
+def test_pairing_keeps_the_credential_private_and_reuses_it(station, tmp_path):
+    kept = next((p for p in station.data.parent.glob("credentials/*")), None)
+    assert kept is not None and kept.stat().st_mode & 0o077 == 0 and kept.read_text() == CREDENTIALS["device"]
+    assert device_credential(station.url, None, kept) == CREDENTIALS["device"]  # later runs read it
+    assert device_credential(station.url, None, tmp_path / "none") == ""  # none kept: the station will say bad_token
+    with pytest.raises(StreamError, match="refused the pairing code"):
+        device_credential(station.url, "used-or-made-up", tmp_path / "other", _cafile(station))
+    with pytest.raises(StreamError, match="pairing with .* failed"):  # the pairing verifies the certificate as the stream does
+        device_credential(station.url, "used-or-made-up", tmp_path / "other")
+
+
+def _stream(station, frames: int, token: str | None = None, resume: str | None = None, trust: dict | None = None, cut_after: int | None = None) -> StreamReport:
     """Stream the sample's first ``frames`` frames, verifying the station's cert.pem unless told otherwise."""
-    trust = {"cafile": str(station.data / "tls" / "cert.pem")} if trust is None else trust
-    client = StreamClient(station.http, token=token, log=lambda text: None, **trust)
+    trust = {"cafile": _cafile(station)} if trust is None else trust
+    client = StreamClient(station.http, token=CREDENTIALS["device"] if token is None else token, log=lambda text: None, **trust)
     source = open_source(str(SAMPLE), max_frames=frames)
     if cut_after is not None:
         source.items = _cut_after(source.items, cut_after)
@@ -85,7 +106,7 @@ def test_every_frame_gets_its_pose(station):
 def test_a_resume_continues_at_the_stations_next_seq_and_an_ended_session_is_final(station):
     """Finding 7: --resume re-sent from frame 0 (124 refusals, recorded anyway); an ended session
     could be resumed."""
-    with OperatorFeed(station, TOKEN) as feed:
+    with OperatorFeed(station, CREDENTIALS["operator"]) as feed:
         with pytest.raises(LinkDied):
             _stream(station, 12, cut_after=5)
         interrupted = feed.event("interrupted", timeout=30)["session_id"]
@@ -137,8 +158,19 @@ def test_evp_stream_exits_non_zero_when_frames_are_refused(station, tmp_path):
         shutil.copy(image, folder / "images" / image.name)
     shutil.copy(SAMPLE / "calib.txt", folder / "calib.txt")
     (folder / "images.txt").write_text("".join(f"{1.7e12 + 33 * k:.0f} images/{image.name}\n" for k, image in enumerate(images)))
-    command = [sys.executable, "-m", "evp.cli", "stream", str(folder), "--url", station.url, "--token", TOKEN, "--quiet"]
-    result = subprocess.run([*command, "--cafile", str(station.data / "tls" / "cert.pem")], capture_output=True, text=True, timeout=120)
+    command = [
+        sys.executable,
+        "-m",
+        "evp.cli",
+        "stream",
+        str(folder),
+        "--url",
+        station.url,
+        "--credential-file",
+        str(station.data.parent / "credentials" / "station"),
+        "--quiet",
+    ]
+    result = subprocess.run([*command, "--cafile", _cafile(station)], capture_output=True, text=True, timeout=120)
     assert result.returncode == 4, result.stderr
     summary = json.loads(result.stdout.strip().splitlines()[-1])
     assert summary["frames_refused"] == 3 and summary["poses_received"] == 0

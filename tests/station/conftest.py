@@ -1,17 +1,25 @@
-"""A real ``evp serve`` in a subprocess on a free loopback port, and helpers to talk to it."""
+"""A real ``evp serve`` in a subprocess on a free loopback port, and helpers to talk to it.
+
+Stations run in the development mode (``--dev-loopback``: no credentials) unless a test asks for
+``paired=True``; then ``operator_credential`` and ``mobile_credential`` pair as a real operator
+and phone do (a one-time code for a credential)."""
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
 import json
+import shutil
 import signal
 import socket
 import ssl
 import subprocess
 import sys
+import tempfile
 import threading
 import time
+import urllib.error
+import urllib.request
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,11 +59,13 @@ class RunningStation:
 
 
 @contextlib.contextmanager
-def running_station(data: Path, *options: str, port: int | None = None) -> Iterator[RunningStation]:
+def running_station(data: Path, *options: str, port: int | None = None, paired: bool = False, preexec_fn=None) -> Iterator[RunningStation]:
     port = port or free_port()
     log = (data.parent / f"{data.name}-serve.log").open("ab")
     command = [sys.executable, "-m", "evp.cli", "serve", "--host", "127.0.0.1", "--port", str(port), "--data", str(data), *options]
-    process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+    if not paired:
+        command.append("--dev-loopback")
+    process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, preexec_fn=preexec_fn)
     station = RunningStation(process, port, data)
     try:
         deadline = time.monotonic() + 60
@@ -73,6 +83,53 @@ def running_station(data: Path, *options: str, port: int | None = None) -> Itera
         log.close()
 
 
+def http_json(station: RunningStation, method: str, path: str, body=None, headers: dict | None = None, credential: str = "") -> tuple[int, dict]:
+    """(status, JSON body) of a request to the station; ``credential`` goes as a bearer header."""
+    data = None if body is None else (body if isinstance(body, bytes) else json.dumps(body).encode())
+    headers = {"Content-Type": "application/json", **(headers or {})}
+    if credential:
+        headers["Authorization"] = f"Bearer {credential}"
+    request = urllib.request.Request(station.http + path, data=data, method=method, headers=headers)
+    try:
+        with urllib.request.urlopen(request, context=insecure_tls(), timeout=30) as response:
+            return response.status, json.loads(response.read() or b"{}")
+    except urllib.error.HTTPError as exc:
+        text = exc.read()
+        try:
+            return exc.code, json.loads(text or b"{}")
+        except ValueError:
+            return exc.code, {"error": text.decode(errors="replace")}
+
+
+def operator_login_code(station: RunningStation) -> str:
+    """A one-time operator code from the station's database, as ``evp pairing-code --role operator`` makes it."""
+    from evp.station.auth import Credentials
+    from evp.station.store import SessionStore
+
+    store = SessionStore(f"sqlite:///{station.data / 'evp.sqlite'}")
+    try:
+        return Credentials(store.engine).issue_code("operator", 60)
+    finally:
+        store.close()
+
+
+def operator_credential(station: RunningStation) -> str:
+    """Log in as the operator: a one-time code traded for the operator's credential."""
+    code = operator_login_code(station)
+    status, body = http_json(station, "POST", "/api/pair", {"code": code, "device": "test operator"})
+    assert status == 200 and body["role"] == "operator", body
+    return body["credential"]
+
+
+def mobile_credential(station: RunningStation, operator: str, device: str = "test phone") -> str:
+    """Pair a phone: the operator asks for a code (the QR code), the phone trades it."""
+    status, body = http_json(station, "POST", "/api/pairing", {"role": "mobile"}, credential=operator)
+    assert status == 200, body
+    status, body = http_json(station, "POST", "/api/pair", {"code": body["code"], "device": device})
+    assert status == 200 and body["role"] == "mobile", body
+    return body["credential"]
+
+
 def insecure_tls() -> ssl.SSLContext:
     context = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
     context.check_hostname = False
@@ -85,8 +142,9 @@ class OperatorFeed:
     test waits for what the station announces (a session ended, interrupted, released) instead of
     sleeping. Everything received since connecting is kept; waits look at all of it."""
 
-    def __init__(self, station: RunningStation, token: str = ""):
-        self.url = f"{station.url}/ws/operator" + (f"?token={token}" if token else "")
+    def __init__(self, station: RunningStation, credential: str = ""):
+        self.url = f"{station.url}/ws/operator"
+        self.headers = {"Authorization": f"Bearer {credential}"} if credential else {}
         self.messages: list[dict] = []
         self._arrived = threading.Condition()
         self._loop = asyncio.new_event_loop()
@@ -107,7 +165,7 @@ class OperatorFeed:
 
     def _run(self) -> None:
         async def read() -> None:
-            async with websockets.connect(self.url, ssl=insecure_tls()) as connection:
+            async with websockets.connect(self.url, ssl=insecure_tls(), additional_headers=self.headers) as connection:
                 async for text in connection:
                     with self._arrived:
                         self.messages.append(json.loads(text))
@@ -186,3 +244,23 @@ def run_stream(*args: str, timeout: float = 300) -> dict:
 @pytest.fixture
 def station_data(tmp_path) -> Path:
     return tmp_path / "station"
+
+
+@pytest.fixture(scope="session")
+def postgres_url() -> Iterator[str]:
+    """A real PostgreSQL server for this test session (scripts/postgres.sh: Debian's package,
+    installed when missing and possible); the tests that use it skip when it cannot start."""
+    pytest.importorskip("psycopg")
+    script = Path(__file__).resolve().parents[2] / "scripts" / "postgres.sh"
+    folder = Path(tempfile.mkdtemp(prefix="evp-postgres-"))
+    folder.chmod(0o755)  # the server runs as 'postgres' when the tests run as root
+    data = folder / "data"
+    started = subprocess.run(["bash", str(script), "start", str(data), str(free_port())], capture_output=True, text=True, timeout=600)
+    if started.returncode != 0:
+        shutil.rmtree(folder, ignore_errors=True)
+        pytest.skip(f"no PostgreSQL server: {(started.stderr or started.stdout).strip().splitlines()[-1:]}")
+    try:
+        yield started.stdout.strip().splitlines()[-1]
+    finally:
+        subprocess.run(["bash", str(script), "stop", str(data)], capture_output=True, timeout=120)
+        shutil.rmtree(folder, ignore_errors=True)

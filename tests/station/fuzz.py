@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 
 from evp.config import Settings
+from evp.station.auth import DEV
 from evp.station.base_station import Station
 from evp.station.protocol import IMAGE_HEADER, IMAGE_MAGIC, PROTOCOL_VERSION, Hello, ImageMessage, ProtocolError, decode_image, decode_text, encode_image
 from evp.station.store import SessionStore
@@ -297,7 +298,7 @@ async def fuzz_station(data_dir: Path, messages: int, seed: int = 0, progress=No
         nonlocal number
         number += 1
         result.sessions += 1
-        opened, _ = station.open_session(Hello(protocol=PROTOCOL_VERSION, device=f"fuzz-{number}"))
+        opened, _ = station.open_session(Hello(protocol=PROTOCOL_VERSION, device=f"fuzz-{number}"), DEV)
         opened.attach(send)
         opened.on_text(json.dumps({"type": "config", "camera": CAMERA}), time.time())
         client.seq, client.time, client.telemetry_time = 0, 1.0, 1.0
@@ -322,9 +323,9 @@ async def fuzz_station(data_dir: Path, messages: int, seed: int = 0, progress=No
                     in_frame = False
                     if seq is not None and session.next_seq == seq + 1 and next_seq <= seq:  # taken: answered now or later
                         answers[seq] = sum(1 for m in replies[before:] if m.type in ("pose", "dropped", "error") and getattr(m, "seq", None) == seq)
-                    else:  # refused: one error, now (nothing else answers with an error during the call)
+                    else:  # refused (one error) or shed by the overload cap (one dropped), now
                         result.frames_refused += 1
-                        mine = [m for m in replies[before:] if m.type == "error"]
+                        mine = [m for m in replies[before:] if m.type == "error" or (m.type == "dropped" and m.seq == seq)]
                         result.unanswered += len(mine) == 0
                         result.answered_twice += len(mine) > 1
                 else:

@@ -17,7 +17,7 @@ import pytest
 from evp.io.registry import open_dataset
 from evp.station.store import SessionStore
 from tests.conftest import PROJECT, SAMPLE
-from tests.station.conftest import running_station
+from tests.station.conftest import operator_login_code, running_station
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 ARTIFACTS = PROJECT / "test-artifacts"
@@ -45,13 +45,16 @@ def test_phone_page_streams_and_operator_sees_the_trajectory(tmp_path, station_d
     write_y4m(video, [frame.image for frame in dataset.frames()], fps=fps)
     ARTIFACTS.mkdir(exist_ok=True)
     args = ["--use-fake-ui-for-media-stream", "--use-fake-device-for-media-stream", f"--use-file-for-fake-video-capture={video}", "--no-sandbox"]
-    token = "t0ken"  # the operator page and the phone page carry it, as the QR code and the banner give them
-    with running_station(station_data, "--token", token) as station, sync_api.sync_playwright() as playwright:
+    with running_station(station_data, paired=True) as station, sync_api.sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=CHROMIUM, args=args)
         context = browser.new_context(ignore_https_errors=True, geolocation={"latitude": 3.3745, "longitude": -76.5331}, permissions=["geolocation"])
+        stranger = context.new_page()
+        stranger.goto(f"{station.http}/")  # not logged in: the page says how
+        stranger.wait_for_function("document.getElementById('st-link').textContent.startsWith('not logged in')")
         operator = context.new_page()
-        operator.goto(f"{station.http}/?token={token}")
+        operator.goto(f"{station.http}/#pair={operator_login_code(station)}")  # the login link evp serve prints
         operator.wait_for_function("document.getElementById('st-link').textContent === 'up'")
+        assert "#pair" not in operator.url  # the used code left the address bar
         operator.click("#camera-button")
         form = "#camera-form"
         for name in ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"):
@@ -61,8 +64,11 @@ def test_phone_page_streams_and_operator_sees_the_trajectory(tmp_path, station_d
         operator.click("#configure")
         operator.wait_for_function("document.getElementById('configure-result').textContent.startsWith('stored')")
 
+        operator.click("#pair-phone")  # a one-time QR code for the phone
+        operator.wait_for_function("window.evp.pairingUrl !== undefined")
         phone = context.new_page()
-        phone.goto(f"{station.http}/phone?token={token}")
+        phone.goto(operator.evaluate("window.evp.pairingUrl"))  # what scanning the QR code opens
+        phone.wait_for_function("localStorage.getItem('evp.credential') !== null")
         phone.wait_for_function("window.evpPhone.config && window.evpPhone.config.camera.width === 240")
         phone.click("#start")
         phone.wait_for_function("window.evpPhone.poses >= 40 && window.evpPhone.gps >= 1", timeout=120_000)

@@ -18,6 +18,7 @@ from sqlalchemy.exc import OperationalError
 
 from evp.config import Settings
 from evp.io.registry import open_dataset
+from evp.station.auth import DEV
 from evp.station.base_station import Station
 from evp.station.protocol import PROTOCOL_VERSION, Config, Hello, ProtocolError, decode_text, encode, encode_image
 from evp.station.store import SessionStore
@@ -121,7 +122,7 @@ def test_below_the_disk_watermark_nothing_new_is_recorded_and_each_refusal_is_ex
     operators: asyncio.Queue = asyncio.Queue()
     station.operators.add(operators)
     try:
-        session, _ = station.open_session(Hello(protocol=PROTOCOL_VERSION, device="phone"))
+        session, _ = station.open_session(Hello(protocol=PROTOCOL_VERSION, device="phone"), DEV)
         phone = Phone(session)
         session.on_binary(images[0].pack(), 1.0)  # no camera yet: recorded, dropped not_configured
         free["bytes"] = 100 * 10**6
@@ -130,7 +131,7 @@ def test_below_the_disk_watermark_nothing_new_is_recorded_and_each_refusal_is_ex
         session.on_text('{"type": "telemetry", "kind": "baro", "timestamp": 5, "pressure_pa": 101325}', 2.1)
         station.check_storage()
         with pytest.raises(ProtocolError, match="below the 500 MB watermark") as refused:
-            station.open_session(Hello(protocol=PROTOCOL_VERSION, device="another"))
+            station.open_session(Hello(protocol=PROTOCOL_VERSION, device="another"), DEV)
         assert refused.value.code == "storage_full"
         assert phone.answers() == {0: ["dropped"], 1: ["storage_full"]}
         errors = [m for m in phone.messages if m.type == "error"]
@@ -166,7 +167,7 @@ def test_a_dead_estimator_answers_its_frame_in_flight_and_is_restarted(tmp_path,
         station = _station(tmp_path, max_estimator_restarts=1)
         operators: asyncio.Queue = asyncio.Queue()
         station.operators.add(operators)
-        session, _ = station.open_session(Hello(protocol=PROTOCOL_VERSION, device="phone"))
+        session, _ = station.open_session(Hello(protocol=PROTOCOL_VERSION, device="phone"), DEV)
         phone = Phone(session)
         config = encode(Config(camera=camera))
 
@@ -218,20 +219,20 @@ def test_session_ids_are_checked_ended_sessions_are_final_and_an_unopenable_reco
     try:
         for hostile in ('x"; filename="evil.sh', "../../etc/passwd", "20261127-114952-c4546Z"):
             with pytest.raises(ProtocolError, match="not a session id") as refused:
-                station.open_session(Hello(protocol=PROTOCOL_VERSION, resume=hostile))
+                station.open_session(Hello(protocol=PROTOCOL_VERSION, resume=hostile), DEV)
             assert refused.value.code == "unknown_session"
             assert _no_such_session(hostile).status_code == 404
         assert _no_such_session("20261127-114952-c45464") is None
-        session, _ = station.open_session(Hello(protocol=PROTOCOL_VERSION, device="phone"))
+        session, _ = station.open_session(Hello(protocol=PROTOCOL_VERSION, device="phone"), DEV)
         session.ended = True  # bye
         with pytest.raises(ProtocolError, match="ended sessions are final") as refused:
-            station.open_session(Hello(protocol=PROTOCOL_VERSION, resume=session.id))
+            station.open_session(Hello(protocol=PROTOCOL_VERSION, resume=session.id), DEV)
         assert refused.value.code == "session_ended"
         station.sessions.clear()
         station.store.update_session(session.id, status="ended")
         committed(lambda: (station.store.session(session.id) or {}).get("status") == "ended", "the ended status")
         with pytest.raises(ProtocolError, match="ended sessions are final"):  # reopened from the database
-            station.open_session(Hello(protocol=PROTOCOL_VERSION, resume=session.id))
+            station.open_session(Hello(protocol=PROTOCOL_VERSION, resume=session.id), DEV)
         session.recording.close()
         sessions = station.data_dir / "sessions"
         for path in sessions.iterdir():
@@ -239,7 +240,7 @@ def test_session_ids_are_checked_ended_sessions_are_final_and_an_unopenable_reco
         sessions.rmdir()
         sessions.write_text("a file where the recordings' folder should be")
         with pytest.raises(ProtocolError, match="recording cannot be opened") as refused:
-            station.open_session(Hello(protocol=PROTOCOL_VERSION, device="phone"))
+            station.open_session(Hello(protocol=PROTOCOL_VERSION, device="phone"), DEV)
         assert refused.value.code == "storage_full"
         committed(lambda: [r["status"] for r in station.store.list_sessions()].count("failed") == 1, "the failed session")
         assert [r["status"] for r in station.store.list_sessions()].count("live") == 0

@@ -20,9 +20,7 @@ from evp.station.recording import has_summary
 from evp.station.store import SessionStore
 from evp.types import CameraModel
 from tests.conftest import SAMPLE
-from tests.station.conftest import OperatorFeed, committed, indexed_messages, insecure_tls, running_station
-
-TOKEN = "s3cret"
+from tests.station.conftest import OperatorFeed, committed, indexed_messages, insecure_tls, mobile_credential, operator_credential, running_station
 
 
 @pytest.fixture(scope="module")
@@ -46,9 +44,9 @@ async def _until(connection, wanted: str, timeout: float = 60.0):
         seen.append(message)
 
 
-async def _open_session(url: str, camera: CameraModel, resume: str | None = None):
+async def _open_session(url: str, camera: CameraModel, resume: str | None = None, credential: str = ""):
     connection = await _connect(url)
-    await connection.send(encode(Hello(protocol=PROTOCOL_VERSION, token=TOKEN, device="test", resume=resume)))
+    await connection.send(encode(Hello(protocol=PROTOCOL_VERSION, token=credential, device="test", resume=resume)))
     welcome, _ = await _until(connection, "welcome")
     await connection.send(encode(Config(camera=camera)))
     while (await _until(connection, "status"))[0].state != "running":
@@ -86,15 +84,15 @@ def _store(data) -> SessionStore:
 def test_bad_messages_get_specific_errors_and_the_session_goes_on(station_data, frames):
     camera, images = frames
 
-    async def scenario(url: str) -> tuple[str, list[str]]:
-        hello = lambda **kw: encode(Hello(**{"protocol": PROTOCOL_VERSION, "token": TOKEN, **kw}))  # noqa: E731
+    async def scenario(url: str, phone: str) -> tuple[str, list[str]]:
+        hello = lambda **kw: encode(Hello(**{"protocol": PROTOCOL_VERSION, "token": phone, **kw}))  # noqa: E731
         assert (await _refused(url, hello(token="wrong")))[0] == "bad_token"
         assert (await _refused(url, hello(token="")))[0] == "bad_token"
         assert (await _refused(url, hello(protocol=99)))[0] == "bad_version"
         assert (await _refused(url, b"\x00\x01"))[0] == "not_ready"
         assert (await _refused(url, hello(resume="no-such-session")))[0] == "unknown_session"
 
-        connection, welcome = await _open_session(url, camera)
+        connection, welcome = await _open_session(url, camera, credential=phone)
         first = encode_image(images[0].image, 0, images[0].timestamp, "png")
         await connection.send(first.pack())
         await _until(connection, "pose")
@@ -128,11 +126,13 @@ def test_bad_messages_get_specific_errors_and_the_session_goes_on(station_data, 
         await connection.close()
         return welcome.session_id, [code for _, code in bad if code]
 
-    with running_station(station_data, "--token", TOKEN) as station, OperatorFeed(station, TOKEN) as feed:
-        session_id, codes = asyncio.run(scenario(station.url))
-        feed.event("ended", session_id)
-        assert _http_status(f"{station.http}/api/state") == 401  # the operator API shows the token: it needs it too
-        assert _http_status(f"{station.http}/api/state?token={TOKEN}") == 200
+    with running_station(station_data, paired=True) as station:
+        operator = operator_credential(station)
+        phone = mobile_credential(station, operator)
+        with OperatorFeed(station, operator) as feed:
+            session_id, codes = asyncio.run(scenario(station.url, phone))
+            feed.event("ended", session_id)
+        assert _http_status(f"{station.http}/api/state") == 401  # the operator API needs the operator's credential
         assert _http_status(f"{station.http}/") == 200  # the page itself is public
     store = _store(station_data)
     try:
@@ -165,7 +165,7 @@ def test_killed_client_leaves_an_interrupted_session_that_resumes(station_data, 
         await connection.send('{"type": "bye"}')
         await connection.close()
 
-    with running_station(station_data, "--token", TOKEN) as station, OperatorFeed(station, TOKEN) as feed:
+    with running_station(station_data) as station, OperatorFeed(station) as feed:
         session_id = asyncio.run(first_link(station.url))
         feed.event("interrupted", session_id, timeout=20)
         store = _store(station_data)
@@ -192,7 +192,7 @@ def test_killed_station_loses_nothing_it_recorded(station_data, frames):
         await _stream_until_posed(connection, images[:6], 0)
         return welcome.session_id
 
-    with running_station(station_data, "--token", TOKEN) as station:
+    with running_station(station_data) as station:
         session_id = asyncio.run(stream(station.url))
         store = _store(station_data)
         committed(lambda: len(store.rows("frames", session_id)) == len(store.rows("poses", session_id)) == 6, "the six frames and poses")
@@ -200,7 +200,7 @@ def test_killed_station_loses_nothing_it_recorded(station_data, frames):
         station.stop(signal.SIGKILL)
         mcap = next((station_data / "sessions").glob("*.mcap"))
         assert not has_summary(mcap)
-    with running_station(station_data, "--token", TOKEN):
+    with running_station(station_data):
         pass  # start-up recovery runs before the station listens (uvicorn's lifespan start)
     store = _store(station_data)
     try:
@@ -232,7 +232,7 @@ def test_unresumed_session_is_released_and_resumes_from_disk_with_a_new_map(tmp_
         await connection.send('{"type": "bye"}')
         await connection.close()
 
-    with running_station(station_data, "--token", TOKEN, "--config", str(config)) as station, OperatorFeed(station, TOKEN) as feed:
+    with running_station(station_data, "--config", str(config)) as station, OperatorFeed(station) as feed:
         session_id = asyncio.run(first_link(station.url))
         feed.event("released", session_id, timeout=20)
         store = _store(station_data)
@@ -258,7 +258,7 @@ def test_bad_telemetry_gets_specific_events_and_the_session_and_recording_go_on(
 
     async def scenario(url: str) -> str:
         connection = await _connect(url)
-        await connection.send(encode(Hello(protocol=PROTOCOL_VERSION, token=TOKEN, device="test")))
+        await connection.send(encode(Hello(protocol=PROTOCOL_VERSION, device="test")))
         welcome, _ = await _until(connection, "welcome")
         await connection.send(encode(Config(camera=camera, T_body_cam=[float(v) for v in np.eye(4).reshape(-1)])))
         while (await _until(connection, "status"))[0].state != "running":
@@ -278,7 +278,7 @@ def test_bad_telemetry_gets_specific_events_and_the_session_and_recording_go_on(
         await connection.close()
         return welcome.session_id
 
-    with running_station(station_data, "--token", TOKEN) as station, OperatorFeed(station, TOKEN) as feed:
+    with running_station(station_data) as station, OperatorFeed(station) as feed:
         session_id = asyncio.run(scenario(station.url))
         for code in ("imu_gap", "clock_jump", "gps_no_lock"):
             assert feed.event(code, session_id, timeout=30)["level"] == "warning"

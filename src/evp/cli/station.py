@@ -21,17 +21,54 @@ def serve(
     db: str | None = typer.Option(None, "--db", help="SQLAlchemy URL (default: SQLite in the data folder), e.g. postgresql://user@host/evp."),
     mavlink: str | None = typer.Option(None, "--mavlink", help="Pose to a flight controller, e.g. udpout:127.0.0.1:14540 or /dev/ttyUSB0,57600."),
     config: Path | None = typer.Option(None, "--config", help="Settings YAML (ORB, camera, SLAM, station, mavlink sections)."),
-    token: str = typer.Option("", "--token", envvar="EVP_TOKEN", help="Shared secret mobile stations must send in hello (default: none)."),
     no_tls: bool = typer.Option(False, "--no-tls", help="Plain HTTP/WebSocket (behind a TLS proxy); phones then need localhost for the camera."),
+    dev_loopback: bool = typer.Option(
+        False, "--dev-loopback", help="Development only: no credentials at all, listening on loopback only (station.dev_loopback)."
+    ),
 ) -> None:
-    """Run the base station: mobile stations stream to it, operators watch it in a browser."""
+    """Run the base station: mobile stations stream to it, operators watch it in a browser.
+    Each phone pairs once (a one-time QR code on the operator page); the operator logs in with
+    the one-time link printed at start."""
     from evp.config import load_settings
     from evp.station.serve import serve as run_station
 
-    run_station(host, port, data, load_settings(config), db, mavlink, token, not no_tls, typer.echo)
+    settings = load_settings(config)
+    if dev_loopback:
+        settings.station.dev_loopback = True
+    run_station(host, port, data, settings, db, mavlink, not no_tls, typer.echo)
 
 
-def run_stream(source_spec, url, realtime, encoding, jpeg_quality, camera, max_frames, token, resume, cafile, fingerprint, insecure, out, quiet, echo) -> dict:
+def _station_database(data: Path, db: str | None) -> str:
+    database = data / "evp.sqlite"
+    if db is None and not database.is_file():
+        raise UsageError(f"{data}: no station database here (evp.sqlite); give --data or --db")
+    return db or f"sqlite:///{database.resolve()}"
+
+
+@app.command("pairing-code")
+def pairing_code(
+    data: Path = typer.Option(Path("evp-data"), "--data", help="The station's data folder."),
+    db: str | None = typer.Option(None, "--db", help="SQLAlchemy URL, when the station uses --db."),
+    role: str = typer.Option("mobile", "--role", help="mobile (a phone or companion computer: evp stream --pair) or operator (a login)."),
+    config: Path | None = typer.Option(None, "--config", help="Settings YAML (station.pairing_code_ttl_s)."),
+) -> None:
+    """Print a one-time pairing code (from the station computer; the station may be running)."""
+    from evp.config import load_settings
+    from evp.station.auth import Credentials
+    from evp.station.store import SessionStore
+
+    if role not in ("mobile", "operator"):
+        raise UsageError(f"--role {role!r}: mobile or operator")
+    store = SessionStore(_station_database(data, db))
+    try:
+        typer.echo(Credentials(store.engine).issue_code(role, load_settings(config).station.pairing_code_ttl_s))
+    finally:
+        store.close()
+
+
+def run_stream(
+    source_spec, url, realtime, encoding, jpeg_quality, camera, max_frames, credential, resume, cafile, fingerprint, insecure, out, quiet, echo
+) -> dict:
     """Stream a source to a station; the poses received are echoed (unless quiet) and written to
     ``out`` (poses.tum: the tracked ones; answers.jsonl: every answer with its fields and its
     frame-sent to answer-received latency; summary.json) when given. Returns the summary."""
@@ -53,7 +90,7 @@ def run_stream(source_spec, url, realtime, encoding, jpeg_quality, camera, max_f
             t = " ".join(f"{v:.4f}" for v in pose.t)
             echo(f"pose {pose.seq} t={pose.timestamp:.3f} {pose.state} xyz=({t}) quality={pose.quality}")
 
-    client = StreamClient(url, token=token, cafile=cafile, fingerprint=fingerprint, insecure=insecure, on_pose=show, log=lambda text: echo(text, err=True))
+    client = StreamClient(url, token=credential, cafile=cafile, fingerprint=fingerprint, insecure=insecure, on_pose=show, log=lambda text: echo(text, err=True))
     report = asyncio.run(client.run(source, realtime, encoding, jpeg_quality, resume))
     summary = report.summary()
     if out is not None:
@@ -75,7 +112,10 @@ def stream(
     jpeg_quality: int = typer.Option(90, "--jpeg-quality", min=1, max=100),
     camera: str | None = typer.Option(None, "--camera", help="Calibration file or profile name when the source has none."),
     max_frames: int | None = typer.Option(None, "--max-frames", min=1, help="Stop after this many frames."),
-    token: str = typer.Option("", "--token", envvar="EVP_TOKEN", help="The station's token, if it has one."),
+    pair: str | None = typer.Option(None, "--pair", help="A one-time pairing code (evp pairing-code, or the operator page): pair, keep the credential."),
+    credential_file: Path | None = typer.Option(
+        None, "--credential-file", help="Where this device keeps its credential (default: ~/.config/evp/credentials/<host>_<port>)."
+    ),
     resume: str | None = typer.Option(None, "--resume", help="Continue this session (after a dropped link)."),
     cafile: str | None = typer.Option(None, "--cafile", help="The station's cert.pem (<data>/tls/cert.pem), to verify its self-signed certificate."),
     fingerprint: str | None = typer.Option(
@@ -88,8 +128,11 @@ def stream(
     """Stream to a base station as a mobile station would; prints each pose, then a JSON summary.
     The station's certificate is verified (--cafile, --fingerprint, or a public one) unless --insecure;
     exits with 4 (link) when the station refused frames."""
+    from evp.mobile.pairing import device_credential
+
+    credential = device_credential(url, pair, credential_file, cafile, fingerprint, insecure)
     summary = run_stream(
-        source, url, realtime, encoding, jpeg_quality, camera, max_frames, token, resume, cafile, fingerprint, insecure, out, quiet, typer.echo
+        source, url, realtime, encoding, jpeg_quality, camera, max_frames, credential, resume, cafile, fingerprint, insecure, out, quiet, typer.echo
     )
     typer.echo(json.dumps(summary))
     if summary["frames_refused"]:
@@ -116,10 +159,7 @@ def run_replay(session: str, data: Path, db: str | None, out: Path | None, all_f
     from evp.station.store import SessionStore
 
     session_id, data = _session_reference(session, data)
-    database = data / "evp.sqlite"
-    if db is None and not database.is_file():
-        raise UsageError(f"{data}: no station database here (evp.sqlite); give --data or --db")
-    store = SessionStore(db or f"sqlite:///{database.resolve()}")
+    store = SessionStore(_station_database(data, db))
     try:
         row = store.session(session_id)
         total = row["frames_received"] if row else None

@@ -6,14 +6,17 @@ The web layer (``evp.station.server``) only translates HTTP and WebSocket traffi
 from __future__ import annotations
 
 import asyncio
-import hmac
 import json
+import os
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from evp import __version__
 from evp.config import Settings
+from evp.station.auth import DEV, Credentials, Identity
+from evp.station.overload import LoadGovernor
 from evp.station.protocol import PROTOCOL_VERSION, SESSION_ID, Config, GpsTelemetry, Hello, Pose, ProtocolError
 from evp.station.recording import has_summary, repair
 from evp.station.session import LiveSession
@@ -33,22 +36,26 @@ def default_camera(settings: Settings) -> CameraModel:
 
 
 class Station:
-    def __init__(self, data_dir: Path, settings: Settings, db_url: str | None = None, token: str = "", mavlink_url: str | None = None):
+    def __init__(self, data_dir: Path, settings: Settings, db_url: str | None = None, mavlink_url: str | None = None):
         self.data_dir = Path(data_dir)
         self.data_dir.mkdir(parents=True, exist_ok=True)
         self.data_dir.chmod(0o700)  # recordings, database and key: the station's user only
         self.settings = settings
         self.camera = default_camera(settings)
-        self.token = token
         self.store = SessionStore(db_url or f"sqlite:///{(self.data_dir / 'evp.sqlite').resolve()}")
         self.storage = StorageGuard(self.data_dir, settings.station.min_free_disk_mb, lambda: self.store.problem)
         self._storage_failing = False  # what the operators were last told
+        self.credentials = Credentials(self.store.engine)
+        self.link_closers: dict[str, Callable[[], None]] = {}  # session id -> close its current link (a resume by its owner)
         self.sessions: dict[str, LiveSession] = {}
         self.operators: set[asyncio.Queue] = set()
         self.link: dict = {}
         self.mavlink: MavlinkRoutes | None = None
         self.mavlink_url = mavlink_url
         self._generations: dict[str, int] = {}
+        self._full: set[str] = set()  # sessions whose estimator is the configured one (not degraded)
+        self.governor = LoadGovernor(settings.station)
+        self._frames_counted: dict[str, int] = {}  # frames received per session at the last tick
         self._status_task: asyncio.Task | None = None
 
     # --- lifecycle ------------------------------------------------------------------------------
@@ -93,62 +100,94 @@ class Station:
 
     # --- mobile stations ------------------------------------------------------------------------
 
-    def check_hello(self, hello: Hello) -> None:
+    def check_hello(self, hello: Hello) -> Identity:
+        """The mobile station a hello comes from (blocking: a database read; call from a thread)."""
         if hello.protocol != PROTOCOL_VERSION:
             raise ProtocolError("bad_version", f"client speaks protocol {hello.protocol}, this station speaks {PROTOCOL_VERSION}")
-        if self.token and not hmac.compare_digest(hello.token.encode(), self.token.encode()):
-            raise ProtocolError("bad_token", "missing or wrong token" if hello.token else "this station needs a token (hello.token)")
+        if self.settings.station.dev_loopback:
+            return DEV
+        identity = self.credentials.identify(hello.token) if hello.token else None
+        if identity is None or not identity.may("mobile"):
+            raise ProtocolError("bad_token", "this station needs the credential this device got when it paired (scan the station's QR code)")
+        return identity
 
-    def open_session(self, hello: Hello) -> tuple[LiveSession, bool]:
-        """A new session, or the one ``hello.resume`` names (kept in memory or reopened from disk);
-        refused while the station cannot record, and for a session that ended."""
+    def open_session(self, hello: Hello, identity: Identity) -> tuple[LiveSession, bool]:
+        """A new session, or the one ``hello.resume`` names (kept in memory or reopened from disk)
+        when ``identity`` opened it; refused while the station cannot record."""
         problem = self.storage_problem()
         if problem:
             raise ProtocolError("storage_full", problem)
         if hello.resume:
-            return self._resume(hello), True
+            return self._resume(hello, identity), True
+        self._make_room()
         recordings = self.data_dir / "sessions"
-        session_id = self.store.create_session(hello.device, "")
+        session_id = self.store.create_session(hello.device, "", identity.credential_id)
         path = recordings / f"{session_id}.mcap"
         self.store.update_session(session_id, mcap_path=str(path.resolve()))
-        session = self._session(session_id, hello.device, path)
+        session = self._session(session_id, hello.device, path, identity.credential_id)
         self.sessions[session_id] = session
-        session.event("info", "connected", f"mobile station {hello.device or '(unnamed)'} connected")
+        session.event("info", "connected", f"mobile station {hello.device or '(unnamed)'} connected (credential {identity.credential_id or 'none'})")
         return session, False
 
-    def _resume(self, hello: Hello) -> LiveSession:
+    def _resume(self, hello: Hello, identity: Identity) -> LiveSession:
+        """The session to resume: another device gets the same answer as for a session that does
+        not exist, and an ended session is final. A resume while the old link still looks up (it
+        died without a close) closes that link: the phone is back at once."""
         if not SESSION_ID.fullmatch(hello.resume):
             raise ProtocolError("unknown_session", f"{hello.resume[:64]!r} is not a session id (YYYYMMDD-HHMMSS-xxxxxx)")
         session = self.sessions.get(hello.resume)
+        row = self.store.session(hello.resume) if session is None else None
+        owner = session.owner if session is not None else (row or {}).get("owner")
+        if owner is None or owner != identity.credential_id:
+            raise ProtocolError("unknown_session", f"no session {hello.resume!r} of this device to resume")
         if session is None:
-            row = self.store.session(hello.resume)
-            if row is None:
-                raise ProtocolError("unknown_session", f"no session {hello.resume!r} to resume")
             if row["status"] in ("ended", "failed"):
                 raise ProtocolError("session_ended", f"session {hello.resume} {row['status']}; ended sessions are final: start a new one")
-            session = self._session(row["id"], row["device"], Path(row["mcap_path"]))
+            self._make_room()
+            session = self._session(row["id"], row["device"], Path(row["mcap_path"]), owner)
             session.continue_from(self.store.rows("frames", session.id))
             self.sessions[session.id] = session
         if session.ended:
             raise ProtocolError("session_ended", f"session {hello.resume} ended; ended sessions are final: start a new one")
         if session.connected:
-            raise ProtocolError("not_ready", f"session {hello.resume} is already connected")
-        session.event("info", "resumed", f"session resumed by {hello.device or 'a mobile station'}")
+            self.link_closers.pop(session.id, lambda: None)()
+            session.detach(clean=False)
+        session.event("info", "resumed", f"session resumed by {hello.device or 'a mobile station'} (credential {identity.credential_id or 'none'})")
         return session
 
-    def _session(self, session_id: str, device: str, path: Path) -> LiveSession:
+    def _session(self, session_id: str, device: str, path: Path, owner: str) -> LiveSession:
         """The session with its recording open; one whose file cannot be opened is marked failed
         (never shown live) and refused with storage_full."""
         try:
-            return LiveSession(session_id, device, self.store, path, self, self.settings.station.estimate_on_connect)
+            session = LiveSession(session_id, device, self.store, path, self, self.settings.station.estimate_on_connect)
         except OSError as exc:
             self.store.update_session(session_id, status="failed", ended_at=time.time())
             self.on_event(None, self.store.log_event(session_id, "error", "storage_full", f"recording {path.name} cannot be opened: {exc}"))
             raise ProtocolError("storage_full", f"the recording cannot be opened: {exc.strerror or exc}") from None
+        session.owner = owner
+        return session
+
+    def _make_room(self) -> None:
+        """At ``station.max_sessions``: release the interrupted session that waited longest, else refuse."""
+        cap = self.settings.station.max_sessions
+        if len(self.sessions) < cap:
+            return
+        waiting = [s for s in self.sessions.values() if not s.connected and s.disconnected_at is not None]
+        if not waiting:
+            raise ProtocolError("busy", f"the station has {cap} live sessions (station.max_sessions); try again later")
+        oldest = min(waiting, key=lambda s: s.disconnected_at)
+        asyncio.get_running_loop().create_task(self._release(oldest, f"released to make room for a new session ({cap} at most)"))
+        self.sessions.pop(oldest.id, None)
+
+    def full_estimator_slots(self) -> int:
+        """Sessions that may run the configured estimator at once; beyond, the light VO."""
+        configured = self.settings.station.full_estimators
+        return configured if configured is not None else len(os.sched_getaffinity(0))
 
     async def end_session(self, session: LiveSession) -> None:
         await session.close("ended")
         self.sessions.pop(session.id, None)
+        self._full.discard(session.id)
         if self.mavlink is not None:
             self.mavlink.release(session.id)
         self.broadcast({"type": "sessions"})
@@ -187,8 +226,17 @@ class Station:
 
     # --- StationHooks -------------------------------------------------------------------------
 
-    def settings_json(self) -> str:
-        return self.settings.model_dump_json()
+    def estimator_settings(self, session: LiveSession) -> tuple[str, str]:
+        """The settings a session's new estimator runs with, and why they are lighter than the
+        operator's when they are: past ``full_estimator_slots`` sessions (one per core by
+        default) a session gets the light VO, so every session keeps a usable pose rate instead
+        of all of them collapsing together (issue 34: 0.9 poses/s each for eight SLAM clients)."""
+        slots = self.full_estimator_slots()
+        if self.settings.estimator not in ("auto", "slam") or session.id in self._full or len(self._full) < slots:
+            self._full.add(session.id)
+            return self.settings.model_dump_json(), ""
+        light = self.settings.model_copy(update={"estimator": "klt-vo"})
+        return light.model_dump_json(), f"station at capacity ({slots} sessions with the full estimator): this session runs the light VO (klt-vo)"
 
     def storage_problem(self) -> str | None:
         return self.storage.problem()
@@ -261,25 +309,52 @@ class Station:
         }
 
     async def _status_loop(self) -> None:
+        loop = asyncio.get_running_loop()
         while True:
+            expected = loop.time() + 1.0
             await asyncio.sleep(1.0)
             self.check_storage()
+            self._govern(loop.time() - expected)
             for session in list(self.sessions.values()):
                 if session.connected:
                     session.reply(session.status())
                     self.store.update_session(session.id, **session.count_columns())
                 elif time.monotonic() - session.disconnected_at > self.settings.station.resume_window_s:
-                    await self._release(session)
+                    window = self.settings.station.resume_window_s
+                    await self._release(session, f"not resumed within {window:g} s: estimator stopped, recording closed")
                     continue
                 self.on_status(session)
 
-    async def _release(self, session: LiveSession) -> None:
+    def _govern(self, lag_s: float) -> None:
+        """The overload governor's tick (evp.station.overload): one frame rate for every session
+        that streams at its own pace (answers at once: phones); a session answered after vision
+        keeps a bounded number of frames in flight, so it cannot outrun the station."""
+        paced = {s.id: s for s in self.sessions.values() if s.answers == "at_once"}
+        for session in self.sessions.values():
+            if session.id not in paced:
+                session.max_fps = None
+        counted, self._frames_counted = self._frames_counted, {i: s.counters.frames_received for i, s in paced.items()}
+        rates = [n - counted[i] for i, n in self._frames_counted.items() if i in counted and n > counted[i] and paced[i].connected]
+        cap = self.governor.tick(time.monotonic(), lag_s, rates, self.settings.camera.fps)
+        if cap is False:
+            return
+        config = self.config_for_mobile()
+        for session in paced.values():
+            session.max_fps = cap
+            session.reply(config if cap is None else config.model_copy(update={"fps": cap}))
+        if cap is None:
+            text = f"load back to normal: mobile stations may stream at {config.fps:g} fps again"
+        else:
+            text = f"CPU overload (the station ran {lag_s * 1000:.0f} ms late): every mobile station capped at {cap:g} fps, frames above it dropped"
+        self.on_event(None, self.store.log_event(None, "warning" if cap else "info", "overload", text))
+
+    async def _release(self, session: LiveSession, why: str) -> None:
         """An interrupted session nobody resumed: free its estimator process, close its recording.
         A later resume reopens it from disk with a new map."""
         self.sessions.pop(session.id, None)
+        self._full.discard(session.id)
         await session.close("interrupted")
         if self.mavlink is not None:
             self.mavlink.release(session.id)
-        window = self.settings.station.resume_window_s
-        session.event("info", "released", f"not resumed within {window:g} s: estimator stopped, recording closed")
+        session.event("info", "released", why)
         self.broadcast({"type": "sessions"})

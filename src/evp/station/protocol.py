@@ -46,7 +46,8 @@ ERROR_CODES = (
     "oversized",  # larger than MAX_TEXT_BYTES / MAX_IMAGE_BYTES
     "unknown_type",  # a "type" (or telemetry "kind") this version does not know
     "bad_version",  # hello with another protocol version
-    "bad_token",  # hello without the station's token
+    "bad_token",  # hello without a credential the station paired (or a revoked one)
+    "busy",  # the station is at its session cap, or the session's recording at its quota
     "not_ready",  # a message that needs hello (or config) first
     "unknown_session",  # hello resuming a session the station does not have
     "out_of_order",  # sequence number or timestamp not increasing
@@ -277,7 +278,7 @@ class Dropped(_Message):
 
     type: Literal["dropped"] = "dropped"
     seq: int
-    reason: Literal["stale", "estimation_off", "not_configured", "closing"]
+    reason: Literal["stale", "estimation_off", "not_configured", "closing", "overload"]
 
 
 class Log(_Message):
@@ -297,6 +298,28 @@ class Bye(_Message):
     type: Literal["bye"] = "bye"
 
 
+class Heartbeat(_Message):
+    """Sent by both ends on an idle link (``station.heartbeat_interval_s``): a link that stays
+    silent for ``heartbeat_timeout_s`` is dead even without a close frame. Link-level: it is
+    neither recorded nor answered."""
+
+    type: Literal["heartbeat"] = "heartbeat"
+
+
+HEARTBEAT_TEXT = '{"type": "heartbeat"}'
+
+
+def is_heartbeat(text: str) -> bool:
+    """A heartbeat, told apart without a full decode (it arrives every second on every link)."""
+    if len(text) > 64 or "heartbeat" not in text:
+        return False
+    try:
+        data = json.loads(text)
+    except ValueError:
+        return False
+    return isinstance(data, dict) and data.get("type") == "heartbeat"
+
+
 MESSAGES: dict[str, type[_Message]] = {
     "hello": Hello,
     "welcome": Welcome,
@@ -308,8 +331,9 @@ MESSAGES: dict[str, type[_Message]] = {
     "log": Log,
     "error": Error,
     "bye": Bye,
+    "heartbeat": Heartbeat,
 }
-Message = Hello | Welcome | Config | Enable | Status | Pose | Dropped | Log | Error | Bye | Telemetry
+Message = Hello | Welcome | Config | Enable | Status | Pose | Dropped | Log | Error | Bye | Heartbeat | Telemetry
 
 
 def _reject_constant(name: str) -> float:

@@ -2,55 +2,79 @@
 
 from __future__ import annotations
 
+import ipaddress
 from pathlib import Path
 
 from evp.config import Settings
+from evp.errors import UsageError
 from evp.station.base_station import Station
+from evp.station.limits import dead_link_aware_websocket_protocol, guarded_http_protocol, limit_logs
 from evp.station.protocol import MAX_IMAGE_BYTES
 from evp.station.server import create_app
 from evp.station.tls import ensure_certificate, fingerprint, local_addresses
 
 
-def link_info(host: str, port: int, tls: bool, cert: Path | None, token: str) -> dict:
-    """The addresses an operator and a phone use, and the certificate to trust."""
+def link_info(host: str, port: int, tls: bool, cert: Path | None, dev_loopback: bool) -> dict:
+    """The addresses an operator and a phone use, and the certificate to trust. No secrets: the
+    pairing codes travel in URL fragments made on demand (``POST /api/pairing``)."""
     scheme = "https" if tls else "http"
     reachable = host if host not in ("0.0.0.0", "::", "") else next((a for a in local_addresses() if a != "127.0.0.1"), "127.0.0.1")
-    query = f"?token={token}" if token else ""
-    phone_url = f"{scheme}://{reachable}:{port}/phone{query}"
+    base = f"{scheme}://{reachable}:{port}"
     return {
         "host": host,
         "port": port,
         "tls": tls,
-        "operator_url": f"{scheme}://{reachable}:{port}/{query}",
-        "phone_url": phone_url,
+        "base_url": base,
+        "operator_url": f"{base}/",
+        "phone_url": f"{base}/phone",
         "mobile_ws_url": f"{'wss' if tls else 'ws'}://{reachable}:{port}/ws/mobile",
         "fingerprint_sha256": fingerprint(cert) if cert else None,
-        "token_required": bool(token),
+        "access": "dev_loopback: no credentials" if dev_loopback else "per-device pairing",
     }
 
 
-def serve(host: str, port: int, data_dir: Path, settings: Settings, db_url: str | None, mavlink_url: str | None, token: str, tls: bool, echo) -> None:
+def is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def serve(host: str, port: int, data_dir: Path, settings: Settings, db_url: str | None, mavlink_url: str | None, tls: bool, echo) -> None:
     import uvicorn
 
+    limits = settings.station
+    if limits.dev_loopback and not is_loopback(host):
+        raise UsageError(f"--dev-loopback (no credentials) listens on loopback only, not on {host!r}: use --host 127.0.0.1")
     data_dir.mkdir(parents=True, exist_ok=True)
     cert, key = ensure_certificate(data_dir / "tls") if tls else (None, None)
-    station = Station(data_dir, settings, db_url, token, mavlink_url)
-    station.link = link_info(host, port, tls, cert, token)
+    station = Station(data_dir, settings, db_url, mavlink_url)
+    station.link = link_info(host, port, tls, cert, limits.dev_loopback)
     echo(f"EVP base station: operator UI {station.link['operator_url']}  phone page {station.link['phone_url']}")
     echo(f"mobile stations connect to {station.link['mobile_ws_url']}; data in {data_dir.resolve()}")
     if cert:
         echo(f"TLS certificate {cert} (self-signed), SHA-256 {station.link['fingerprint_sha256']}")
-    if not token:
-        echo("no --token: any client that reaches this port may stream to the station and use the operator UI")
+    if limits.dev_loopback:
+        echo("DEVELOPMENT MODE (--dev-loopback): no credentials; anything on this computer may stream to the station and operate it")
+    else:
+        code = station.credentials.issue_code("operator", limits.pairing_code_ttl_s)
+        minutes = limits.pairing_code_ttl_s / 60
+        echo(f"operator login (one use, valid {minutes:g} min; `evp pairing-code --role operator` makes another): {station.link['base_url']}/#pair={code}")
+        echo("phones pair from the operator page (Pair a phone: a one-time QR code)")
+    limit_logs(limits)
     config = uvicorn.Config(
         create_app(station),
         host=host,
         port=port,
         ssl_certfile=str(cert) if cert else None,
         ssl_keyfile=str(key) if key else None,
+        http=guarded_http_protocol(limits),
+        ws=dead_link_aware_websocket_protocol(limits.heartbeat_timeout_s),  # a dead link (no close frame) is seen within heartbeat_timeout_s
         ws_max_size=2 * MAX_IMAGE_BYTES,  # up to twice the limit still gets a specific 'oversized' error
-        ws_ping_interval=5.0,
-        ws_ping_timeout=10.0,
+        ws_ping_interval=limits.heartbeat_interval_s,
+        ws_ping_timeout=limits.heartbeat_timeout_s - limits.heartbeat_interval_s,
         log_level="warning",
         lifespan="on",
     )

@@ -1,25 +1,26 @@
 """The ASGI application: mobile and operator WebSockets, the operator API, the web pages.
 
-Routes
+Routes (who may use them: evp.station.access)
   /                     operator UI           /phone               phone page (mobile station)
   /ws/mobile            mobile stations       /ws/operator         operator UI live feed
+  POST /api/pair        a one-time pairing code for this device's credential (open to all)
   /api/state            settings + live sessions          POST /api/configure
   /api/sessions         recorded sessions     POST /api/sessions/{id}/{start|stop|resume}
   /api/sessions/{id}/trajectory.tum | recording.mcap | events
-  /api/qr.svg           QR code of the phone page's address
+  POST /api/pairing     a new one-time code for a phone, with its QR code
+  /api/devices          paired credentials    POST /api/devices/{id}/revoke
+  /api/health           database reachable, schema version
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import hmac
 import io
 import json
 import time
 from importlib import resources
 from pathlib import Path
-from urllib.parse import parse_qs
 
 from pydantic import ValidationError
 from starlette.applications import Starlette
@@ -33,9 +34,13 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 from evp import __version__
 from evp.config import validation_message
 from evp.io.trajectory import tum_text
+from evp.station.access import AccessGate, login_cookie
+from evp.station.auth import Identity, PairingError
 from evp.station.base_station import Station
-from evp.station.protocol import SESSION_ID, Error, Hello, ProtocolError, Welcome, decode_text, encode
+from evp.station.limits import BodyLimit
+from evp.station.protocol import HEARTBEAT_TEXT, SESSION_ID, Error, Hello, ProtocolError, Welcome, decode_text, encode, is_heartbeat
 from evp.station.replay import live_poses, tracked_trajectory
+from evp.station.schema import health, version
 
 HELLO_TIMEOUT_S = 10.0
 
@@ -50,8 +55,9 @@ async def _sender(websocket: WebSocket, outbox: asyncio.Queue) -> None:
             await websocket.send_text(await outbox.get())
 
 
-async def _hello(websocket: WebSocket, station: Station) -> Hello:
-    """The first message must be a valid hello; anything else ends the connection with an error."""
+async def _hello(websocket: WebSocket, station: Station) -> tuple[Hello, Identity]:
+    """The first message must be a valid hello from a paired device; anything else ends the
+    connection with an error."""
     message = await asyncio.wait_for(websocket.receive(), HELLO_TIMEOUT_S)
     if message["type"] == "websocket.disconnect":
         raise WebSocketDisconnect(message.get("code", 1000))
@@ -60,16 +66,21 @@ async def _hello(websocket: WebSocket, station: Station) -> Hello:
     hello = decode_text(message["text"])
     if not isinstance(hello, Hello):
         raise ProtocolError("not_ready", f"the first message must be hello, not {hello.type}")
-    station.check_hello(hello)
-    return hello
+    return hello, await asyncio.to_thread(station.check_hello, hello)
+
+
+async def _heartbeats(outbox: asyncio.Queue, interval_s: float) -> None:
+    while True:
+        await asyncio.sleep(interval_s)
+        outbox.put_nowait(HEARTBEAT_TEXT)
 
 
 async def mobile_endpoint(websocket: WebSocket) -> None:
     station: Station = websocket.app.state.station
     await websocket.accept()
     try:
-        hello = await _hello(websocket, station)
-        session, resumed = station.open_session(hello)
+        hello, identity = await _hello(websocket, station)
+        session, resumed = station.open_session(hello, identity)
     except (ProtocolError, TimeoutError) as exc:
         error = exc if isinstance(exc, ProtocolError) else ProtocolError("not_ready", f"no hello within {HELLO_TIMEOUT_S:.0f} s")
         station.on_event(None, station.store.log_event(None, "error", error.code, f"connection refused: {error.message}"))
@@ -81,36 +92,71 @@ async def mobile_endpoint(websocket: WebSocket) -> None:
         return
     outbox: asyncio.Queue = asyncio.Queue()
     sender = asyncio.create_task(_sender(websocket, outbox))
+    limits = station.settings.station
+    heartbeats = asyncio.create_task(_heartbeats(outbox, limits.heartbeat_interval_s))
     outbox.put_nowait(encode(Welcome(session_id=session.id, resumed=resumed, next_seq=session.next_seq, server=f"evp {__version__}")))
-    session.attach(outbox.put_nowait)
+    send = outbox.put_nowait
+    session.attach(send)
+    taken_over = asyncio.Event()
+    station.link_closers[session.id] = taken_over.set  # its owner resumed it on a new link
     session.reply(station.config_for_mobile())
     if session.worker is not None or session.camera is not None:
         session.reply(session.status())
     station.broadcast({"type": "sessions"})
     try:
-        while not session.ended:
-            message = await websocket.receive()
+        while not session.ended and not taken_over.is_set():
+            message = await _receive_unless_taken_over(websocket, taken_over)
+            if message is None:
+                break
             if message["type"] == "websocket.disconnect":
                 break
             now = time.time()
             if message.get("bytes") is not None:
                 session.on_binary(message["bytes"], now)
-            elif message.get("text") is not None:
+            elif message.get("text") is not None and not is_heartbeat(message["text"]):
                 session.on_text(message["text"], now)
     except WebSocketDisconnect:
         pass
     finally:
-        if session.ended:
-            await station.end_session(session)  # frames in flight get their poses, still sent on this link
-        session.detach(clean=session.ended)
-        while not outbox.empty():  # let the last replies (poses of frames in flight) go out
-            await asyncio.sleep(0.01)
-            if sender.done():
-                break
-        sender.cancel()
-        with contextlib.suppress(RuntimeError, WebSocketDisconnect):
-            await websocket.close()
-        station.on_status(session)
+        heartbeats.cancel()
+        if taken_over.is_set():  # the session lives on, on its owner's new link
+            sender.cancel()
+            with contextlib.suppress(RuntimeError, WebSocketDisconnect):
+                await websocket.close(code=4000, reason="resumed on another link")
+        else:
+            await _end_link(station, session, websocket, outbox, sender, taken_over)
+
+
+async def _end_link(station: Station, session, websocket: WebSocket, outbox: asyncio.Queue, sender: asyncio.Task, taken_over: asyncio.Event) -> None:
+    """The link closed (or died): the session ended (bye) or is interrupted, awaiting a resume."""
+    if station.link_closers.get(session.id) == taken_over.set:
+        del station.link_closers[session.id]
+    if session.ended:
+        await station.end_session(session)  # frames in flight get their poses, still sent on this link
+    session.detach(clean=session.ended)
+    while not outbox.empty():  # let the last replies (poses of frames in flight) go out
+        await asyncio.sleep(0.01)
+        if sender.done():
+            break
+    sender.cancel()
+    with contextlib.suppress(RuntimeError, WebSocketDisconnect):
+        await websocket.close()
+    station.on_status(session)
+
+
+async def _receive_unless_taken_over(websocket: WebSocket, taken_over: asyncio.Event) -> dict | None:
+    """The next message; None when the session's owner resumed it on another link first. (A dead
+    link ends in a disconnect here: uvicorn's WebSocket pings go every heartbeat_interval_s and
+    a pong must come within the rest of heartbeat_timeout_s, answered by any client's WebSocket
+    stack, so no client has to send anything to stay connected.)"""
+    receive = asyncio.ensure_future(websocket.receive())
+    interrupted = asyncio.ensure_future(taken_over.wait())
+    done, _ = await asyncio.wait([receive, interrupted], return_when=asyncio.FIRST_COMPLETED)
+    interrupted.cancel()
+    if receive in done:
+        return receive.result()
+    receive.cancel()
+    return None
 
 
 async def operator_endpoint(websocket: WebSocket) -> None:
@@ -208,13 +254,79 @@ async def session_events(request: Request) -> JSONResponse:
     return JSONResponse({"events": rows})
 
 
-async def qr_code(request: Request) -> Response:
+def _qr_svg(text: str) -> str:
     import segno
 
-    station: Station = request.app.state.station
     buffer = io.BytesIO()
-    segno.make(station.link.get("phone_url", ""), error="m").save(buffer, kind="svg", scale=5, border=2)
-    return Response(buffer.getvalue(), media_type="image/svg+xml")
+    segno.make(text, error="m").save(buffer, kind="svg", scale=5, border=2)
+    return buffer.getvalue().decode()
+
+
+async def _json_object(request: Request) -> dict:
+    try:
+        body = await request.json()
+    except ValueError:
+        body = None
+    if not isinstance(body, dict):
+        raise ValueError("the body must be a JSON object")
+    return body
+
+
+async def pair(request: Request) -> JSONResponse:
+    """A one-time code for this device's own credential (shown once; the database keeps its hash).
+    An operator's login also sets the HttpOnly cookie the operator page then uses."""
+    station: Station = request.app.state.station
+    try:
+        body = await _json_object(request)
+        code, name = body.get("code"), body.get("device", "")
+        if not isinstance(code, str) or not isinstance(name, str):
+            raise ValueError("give code (and device) as strings")
+        identity, credential = await asyncio.to_thread(station.credentials.pair, code[:64], name)
+    except PairingError as exc:
+        station.on_event(None, station.store.log_event(None, "warning", "pairing_refused", str(exc)))
+        return JSONResponse({"error": str(exc)}, status_code=403)
+    except ValueError as exc:
+        return JSONResponse({"error": str(exc)}, status_code=400)
+    station.on_event(
+        None, station.store.log_event(None, "info", "paired", f"{identity.role} {identity.name or '(unnamed)'} paired (credential {identity.credential_id})")
+    )
+    response = JSONResponse({"credential": credential, "credential_id": identity.credential_id, "role": identity.role})
+    if identity.role == "operator":
+        response.headers["Set-Cookie"] = login_cookie(credential, request.url.scheme == "https")
+    return response
+
+
+async def new_pairing(request: Request) -> JSONResponse:
+    """A one-time code for a phone: the phone page's address with the code in its fragment (never
+    sent to a server, so never in an access log), and that address as a QR code."""
+    station: Station = request.app.state.station
+    role = (await _json_object(request)).get("role", "mobile")
+    if role not in ("mobile", "operator"):
+        return JSONResponse({"error": "role: mobile or operator"}, status_code=400)
+    code = await asyncio.to_thread(station.credentials.issue_code, role, station.settings.station.pairing_code_ttl_s)
+    page = "phone" if role == "mobile" else ""
+    url = f"{station.link.get('base_url', str(request.base_url).rstrip('/'))}/{page}#pair={code}"
+    return JSONResponse({"code": code, "url": url, "qr_svg": _qr_svg(url), "expires_in_s": station.settings.station.pairing_code_ttl_s})
+
+
+async def devices(request: Request) -> JSONResponse:
+    return JSONResponse({"devices": await asyncio.to_thread(request.app.state.station.credentials.listing)})
+
+
+async def revoke(request: Request) -> JSONResponse:
+    station: Station = request.app.state.station
+    credential_id = request.path_params["credential_id"]
+    if not await asyncio.to_thread(station.credentials.revoke, credential_id):
+        return JSONResponse({"error": "no such credential, or already revoked"}, status_code=404)
+    station.on_event(None, station.store.log_event(None, "info", "revoked", f"credential {credential_id} revoked"))
+    return JSONResponse({"revoked": credential_id})
+
+
+async def health_check(request: Request) -> JSONResponse:
+    engine = request.app.state.station.store.engine
+    problem = await asyncio.to_thread(health, engine)
+    schema = None if problem else await asyncio.to_thread(version, engine)
+    return JSONResponse({"database": problem or "ok", "schema_version": schema}, status_code=503 if problem else 200)
 
 
 def _page(name: str):
@@ -222,29 +334,6 @@ def _page(name: str):
         return FileResponse(_static_dir() / name, media_type="text/html")
 
     return page
-
-
-class OperatorTokenGate:
-    """With ``--token``, the operator API and live feed need it too (``?token=`` or ``X-EVP-Token``):
-    they show the token (phone URL, QR code) and control the sessions. The pages themselves are public."""
-
-    PROTECTED = ("/api/", "/ws/operator")
-
-    def __init__(self, app, token: str):
-        self.app = app
-        self.token = token
-
-    async def __call__(self, scope, receive, send) -> None:
-        if self.token and scope["type"] in ("http", "websocket") and scope["path"].startswith(self.PROTECTED):
-            supplied = parse_qs(scope.get("query_string", b"").decode()).get("token", [""])[0]
-            supplied = supplied or dict(scope.get("headers", [])).get(b"x-evp-token", b"").decode()
-            if not hmac.compare_digest(supplied.encode(), self.token.encode()):
-                if scope["type"] == "websocket":
-                    await send({"type": "websocket.close", "code": 1008, "reason": "missing or wrong token"})
-                else:
-                    await JSONResponse({"error": "missing or wrong token (?token= or X-EVP-Token)"}, status_code=401)(scope, receive, send)
-                return
-        await self.app(scope, receive, send)
 
 
 def create_app(station: Station) -> Starlette:
@@ -264,11 +353,20 @@ def create_app(station: Station) -> Starlette:
         Route("/api/sessions/{session_id}/recording.mcap", recording),
         Route("/api/sessions/{session_id}/events", session_events),
         Route("/api/sessions/{session_id}/{action}", command, methods=["POST"]),
-        Route("/api/qr.svg", qr_code),
+        Route("/api/pair", pair, methods=["POST"]),
+        Route("/api/pairing", new_pairing, methods=["POST"]),
+        Route("/api/devices", devices),
+        Route("/api/devices/{credential_id}/revoke", revoke, methods=["POST"]),
+        Route("/api/health", health_check),
         WebSocketRoute("/ws/mobile", mobile_endpoint),
         WebSocketRoute("/ws/operator", operator_endpoint),
         Mount("/static", StaticFiles(directory=_static_dir()), name="static"),
     ]
-    app = Starlette(routes=routes, lifespan=lifespan, middleware=[Middleware(OperatorTokenGate, token=station.token)])
+    limits = station.settings.station
+    middleware = [
+        Middleware(BodyLimit, max_bytes=limits.max_body_bytes),
+        Middleware(AccessGate, identify=station.credentials.identify, open_dev=limits.dev_loopback, allowed_origins=limits.allowed_origins),
+    ]
+    app = Starlette(routes=routes, lifespan=lifespan, middleware=middleware)
     app.state.station = station
     return app

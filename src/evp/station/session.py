@@ -56,7 +56,7 @@ class StationHooks(Protocol):
 
     settings: Settings
 
-    def settings_json(self) -> str: ...
+    def estimator_settings(self, session: LiveSession) -> tuple[str, str]: ...
     def on_pose(self, session: LiveSession, pose: Pose, latency_ms: float) -> None: ...
     def on_event(self, session: LiveSession, event: dict) -> None: ...
     def on_status(self, session: LiveSession) -> None: ...
@@ -86,9 +86,17 @@ class LiveSession:
     def __init__(self, session_id: str, device: str, store: SessionStore, recording_path: Path, station: StationHooks, estimating: bool = True):
         self.id = session_id
         self.device = device
+        self.owner = ""  # the credential id that opened it (evp.station.auth)
         self.store = store
         self.station = station
         self.recording = SessionRecording(recording_path)
+        self.recorded_bytes = recording_path.stat().st_size if recording_path.is_file() else 0  # against station.session_quota_bytes
+        self.degraded = ""  # why this session runs a lighter estimator than configured, when it does
+        self._estimator_start: asyncio.Task | None = None
+        self._quota_told = False
+        self.max_fps: float | None = None  # the overload governor's cap (evp.station.overload)
+        self._accepted_at = -np.inf  # receive time of the last frame under that cap
+        self._closed = False
         self.camera: CameraModel | None = None  # named after the device
         self.T_body_cam: list[float] | None = None  # the camera in the IMU frame (config), for the navigation stage
         self.answers = "at_once"
@@ -237,26 +245,36 @@ class LiveSession:
         self.restart_estimator()
 
     def on_binary(self, data: bytes, now: float) -> None:
-        """Checked (header, order, size, the image's own header, the disk), recorded, then
-        estimated: a refused frame is neither recorded nor counted, and gets its error."""
+        """Checked (header, order, size, the image's own header, the disk), limited (the session's
+        quota, the overload cap), recorded, then estimated: a frame refused or shed is neither
+        recorded nor counted as received, and gets its error or its ``dropped``."""
         try:
             message = decode_image(data)
             self._check_frame(message)
             problem = self.station.storage_problem()
             if problem:
                 raise ProtocolError("storage_full", f"frame not recorded: {problem}", message.seq)
-            self.recording.image(message, now)
         except ProtocolError as exc:
             self.refuse(exc)
             return
+        if self.recorded_bytes + len(data) > self.station.settings.station.session_quota_bytes:
+            self._over_quota(message)
+            return
+        if self.max_fps is not None and now - self._accepted_at < 0.9 / self.max_fps:  # shed before it costs anything
+            self._drop(message, "overload")
+            return
+        try:
+            self.recording.image(message, now)
         except OSError as exc:  # the recording's disk
             self.refuse(ProtocolError("storage_full", f"frame not recorded: {exc}", message.seq))
             return
+        self._accepted_at = now
+        self.recorded_bytes += len(data)
         self.counters.frames_received += 1
         self._last_seq, self._last_frame_time = message.seq, message.timestamp
         if self.camera is None or not self.estimating or self.worker is None:
             self._frame_row(message, now, estimated=False)
-            if self.camera is not None and self.estimating:  # the supervisor gave up: a config restarts it
+            if self.estimator_given_up:
                 self.refuse(ProtocolError("estimator_failed", "the estimator is down (it kept failing); send a config to start a new one", message.seq))
             else:
                 self._drop(message, "not_configured" if self.camera is None else "estimation_off")
@@ -265,6 +283,17 @@ class LiveSession:
         self._frames[message.seq] = message
         self._send_telemetry()
         self.worker.submit(message)
+
+    def _over_quota(self, message: ImageMessage) -> None:
+        """Refused, not recorded: the operator hears it once, the phone for every frame."""
+        quota = self.station.settings.station.session_quota_bytes
+        error = ProtocolError("busy", f"this session's recording reached its quota of {quota / 2**20:.0f} MiB (station.session_quota_bytes)", message.seq)
+        if not self._quota_told:
+            self._quota_told = True
+            self.refuse(error)
+        else:
+            self.reply(Error(code=error.code, message=error.message, seq=error.seq))
+        self.counters.frames_dropped += 1
 
     def _send_telemetry(self) -> None:
         """The telemetry since the last frame, in one message: the estimator process's link thread
@@ -305,19 +334,35 @@ class LiveSession:
     # --- estimator ----------------------------------------------------------------------------
 
     def restart_estimator(self) -> None:
-        """A fresh estimator (new map) for the current camera; the old one finishes in the background."""
+        """A fresh estimator (new map) for the current camera. One process per session, ever: the
+        new one starts once the old one has finished (its frame in flight answered); configs that
+        arrive meanwhile change what it starts with, not how many start."""
         old, self.worker = self.worker, None
-        if old is not None:
-            asyncio.get_running_loop().create_task(old.close())
-        if self.camera is None:
+        if self._estimator_start is not None and not self._estimator_start.done():
+            return  # the start under way reads the newest camera and settings when it gets there
+        if old is None:
+            self._start_estimator()
+        else:
+            self._estimator_start = asyncio.get_running_loop().create_task(self._replace_estimator(old))
+            self.reply(Status(state="starting", estimating=self.estimating, message="estimator restarting"))
+
+    async def _replace_estimator(self, old: EstimatorProcess) -> None:
+        await old.close()
+        if self.worker is None:
+            self._start_estimator()
+
+    def _start_estimator(self) -> None:
+        if self.camera is None or self._closed:  # nothing to estimate, or the session ended meanwhile
             return
-        settings_json = self.station.settings_json()
+        settings_json, self.degraded = self.station.estimator_settings(self)
         self.store.insert("settings", session_id=self.id, t=time.time(), source="server", data_json=settings_json)
         events = ProcessEvents(self._worker_ready, self._worker_pose, self._worker_error, self._worker_dropped, self._worker_exit, self._worker_report)
         args = (self.camera, settings_json, self.T_body_cam, self.answers)
         self.worker = EstimatorProcess(worker_main, args, events, every_message=self.answers == "at_once")
         self.station.on_new_map(self)
-        self.reply(Status(state="starting", estimating=self.estimating, message="estimator starting"))
+        if self.degraded:
+            self.event("warning", "degraded", self.degraded)
+        self.reply(Status(state="starting", estimating=self.estimating, message=self.degraded or "estimator starting"))
 
     def set_estimating(self, enabled: bool, by: str) -> None:
         if enabled == self.estimating:
@@ -403,12 +448,17 @@ class LiveSession:
         self.event("error", "estimator_restarted", f"{reason}: restarted with a new map ({self._estimator_deaths} of {limit} restarts)")
         self.restart_estimator()
 
+    @property
+    def estimator_given_up(self) -> bool:
+        """The supervisor left the estimator down (it kept dying without a pose); a config restarts it."""
+        return self.worker is None and self._estimator_deaths > self.station.settings.station.max_estimator_restarts
+
     # --- status -------------------------------------------------------------------------------
 
     def status(self) -> Status:
         if self.camera is None:
             state = "waiting_config"
-        elif self.worker is None and self._estimator_deaths > self.station.settings.station.max_estimator_restarts:
+        elif self.estimator_given_up:
             state = "failed"
         elif self.worker is None or not self.worker.ready:
             state = "starting"
@@ -423,7 +473,7 @@ class LiveSession:
             frames_dropped=c.frames_dropped,
             fps=round(c.fps(time.time()), 2),
             latency_ms_p50=round(c.latency_p50(), 2),
-            message=self.station.storage_problem() or "",
+            message=self.station.storage_problem() or self.degraded,
         )
 
     def count_columns(self) -> dict:
@@ -433,7 +483,10 @@ class LiveSession:
     async def close(self, status: str) -> None:
         """Finish the estimator (frames in flight get their poses recorded) and the recording
         (compacted: chunked, compressed, indexed)."""
+        self._closed = True
         self._send_telemetry()
+        if self._estimator_start is not None:
+            await self._estimator_start  # a replacement under way finishes (or starts nothing once ended)
         if self.worker is not None:
             await self.worker.close()
             self.worker = None

@@ -30,7 +30,6 @@ from sqlalchemy import (
     String,
     Table,
     Text,
-    create_engine,
     event,
     insert,
     select,
@@ -38,6 +37,8 @@ from sqlalchemy import (
 )
 from sqlalchemy.engine import Engine
 from sqlalchemy.exc import DBAPIError, OperationalError
+
+from evp.station.schema import open_engine, upgrade
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +63,7 @@ sessions = Table(
     Column("frames_received", Integer, nullable=False, default=0),
     Column("frames_estimated", Integer, nullable=False, default=0),
     Column("frames_dropped", Integer, nullable=False, default=0),
+    Column("owner", String(32), nullable=False, default=""),  # the credential that opened it ("" with dev_loopback)
 )
 events = Table(
     "events",
@@ -126,13 +128,33 @@ settings = Table(
     Column("source", String(16), nullable=False),  # operator | mobile | server
     Column("data_json", Text, nullable=False),
 )
+credentials = Table(
+    "credentials",
+    metadata,
+    Column("id", String(32), primary_key=True),  # public: sessions.owner, logs
+    Column("role", String(16), nullable=False),  # mobile | operator
+    Column("name", String(128), nullable=False),
+    Column("secret_sha256", String(64), nullable=False),
+    Column("created_at", Float, nullable=False),
+    Column("revoked_at", Float),
+)
+pairing_codes = Table(
+    "pairing_codes",
+    metadata,
+    Column("code_sha256", String(64), primary_key=True),
+    Column("role", String(16), nullable=False),
+    Column("created_at", Float, nullable=False),
+    Column("expires_at", Float, nullable=False),
+    Column("used_at", Float),
+)
 TABLES = {table.name: table for table in metadata.sorted_tables}
 
 
 def make_engine(url: str) -> Engine:
-    """An engine with the schema created; SQLite gets WAL so readers never block the writer, and
-    a new database file is readable by its owner only (SQLite gives its journal files the same)."""
-    engine = create_engine(url, future=True)
+    """An engine with the schema at its current version (:mod:`evp.station.schema`); SQLite gets
+    WAL so readers never block the writer, and a new database file is readable by its owner only
+    (SQLite gives its journal files the same); a server database's connections are checked before use."""
+    engine = open_engine(url)
     if engine.dialect.name == "sqlite":
         database = engine.url.database
         if database and database != ":memory:" and not Path(database).exists():
@@ -146,7 +168,7 @@ def make_engine(url: str) -> Engine:
             cursor.execute("PRAGMA foreign_keys=ON")
             cursor.close()
 
-    metadata.create_all(engine)
+    upgrade(engine)
     return engine
 
 
@@ -182,9 +204,9 @@ class SessionStore:
     def update_session(self, session_id: str, **values: Any) -> None:
         self._queue.put(("update", "sessions", values, session_id))
 
-    def create_session(self, device: str, mcap_path: str) -> str:
+    def create_session(self, device: str, mcap_path: str, owner: str = "") -> str:
         session_id = time.strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:6]
-        self.insert("sessions", id=session_id, device=device, started_at=time.time(), status="live", mcap_path=mcap_path)
+        self.insert("sessions", id=session_id, device=device, started_at=time.time(), status="live", mcap_path=mcap_path, owner=owner)
         return session_id
 
     def log_event(self, session_id: str | None, level: str, code: str, text: str) -> dict:

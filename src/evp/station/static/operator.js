@@ -2,8 +2,6 @@
 "use strict";
 
 const $ = id => document.getElementById(id);
-const TOKEN = new URLSearchParams(location.search).get("token") || ""; // needed when the station has --token
-const withToken = url => TOKEN ? url + (url.includes("?") ? "&" : "?") + "token=" + encodeURIComponent(TOKEN) : url;
 // per session: its poses and GPS fixes (decimated: a 2-hour session draws as fast as a short one),
 // the navigation filter's last state and the GPS alarm in force
 const state = { config: null, live: {}, selected: null, trajectories: {}, gps: {}, navigation: {}, alarms: {} };
@@ -115,14 +113,15 @@ function fillSettings(config) {
 }
 
 async function loadSessions() {
-  const response = await fetch(withToken("/api/sessions"));
+  const response = await fetch("/api/sessions");
+  if (!response.ok) return;
   const body = await response.json();
   const tbody = document.querySelector("#sessions tbody");
   tbody.innerHTML = "";
   for (const s of body.sessions) {
     const row = tbody.insertRow();
     for (const value of [s.id, s.device, s.status, s.frames_received, s.frames_estimated, s.frames_dropped]) row.insertCell().textContent = value;
-    row.insertCell().innerHTML = `<a href="${withToken(`/api/sessions/${s.id}/trajectory.tum`)}">TUM</a> · <a href="${withToken(`/api/sessions/${s.id}/recording.mcap`)}">MCAP</a>`;
+    row.insertCell().innerHTML = `<a href="/api/sessions/${encodeURIComponent(s.id)}/trajectory.tum">TUM</a> · <a href="/api/sessions/${encodeURIComponent(s.id)}/recording.mcap">MCAP</a>`;
   }
 }
 
@@ -133,7 +132,7 @@ function onMessage(message) {
       $("phone-url").textContent = $("phone-url").href = link.phone_url || "";
       $("mobile-url").textContent = link.mobile_ws_url || "";
       $("fingerprint").textContent = link.fingerprint_sha256 || "(no TLS)";
-      $("token").textContent = link.token_required ? "required (in the phone page address)" : "none";
+      $("access").textContent = link.access || "";
       $("mavlink").textContent = message.mavlink || "off";
       $("data-dir").textContent = message.data_dir; $("db").textContent = message.db;
       fillSettings(message.config);
@@ -167,15 +166,42 @@ function onMessage(message) {
 }
 
 function connect() {
-  const socket = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + withToken("/ws/operator"));
+  const socket = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws/operator");
   socket.onopen = () => { $("st-link").textContent = "up"; };
-  socket.onclose = () => { $("st-link").textContent = "down (retrying)"; setTimeout(connect, 1000); };
+  socket.onclose = async () => {
+    const status = await fetch("/api/state").then(r => r.status, () => 0);
+    $("st-link").textContent = status === 401 ? "not logged in: open the login link evp serve printed (or evp pairing-code --role operator)" : "down (retrying)";
+    setTimeout(connect, status === 401 ? 5000 : 1000);
+  };
   socket.onmessage = event => onMessage(JSON.parse(event.data));
+}
+
+// The login: the link evp serve prints carries a one-time code in its fragment (never sent to a
+// server); traded once, it leaves an HttpOnly cookie this page never sees.
+async function logInIfAsked() {
+  const code = new URLSearchParams(location.hash.slice(1)).get("pair");
+  if (!code) return;
+  history.replaceState(null, "", location.pathname);
+  const response = await fetch("/api/pair", { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify({ code, device: "operator page" }) });
+  if (!response.ok) $("st-link").textContent = "login refused: " + (await response.json()).error;
+}
+
+const postJson = (url, body) => fetch(url, { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body || {}) });
+
+// A phone pairs by scanning a one-time QR code (the phone page's address, the code in its fragment).
+async function pairPhone() {
+  const response = await postJson("/api/pairing", { role: "mobile" });
+  const body = await response.json();
+  if (!response.ok) { $("pairing").textContent = "refused: " + body.error; return; }
+  $("qr").src = "data:image/svg+xml;charset=utf-8," + encodeURIComponent(body.qr_svg);
+  $("qr").hidden = false;
+  $("pairing").textContent = `one use, valid ${Math.round(body.expires_in_s / 60)} min: ${body.url}`;
+  state.pairingUrl = body.url;
 }
 
 async function command(action) {
   if (!state.selected) return;
-  const response = await fetch(withToken(`/api/sessions/${state.selected}/${action}`), { method: "POST" });
+  const response = await postJson(`/api/sessions/${encodeURIComponent(state.selected)}/${action}`);
   if (!response.ok) addEvent({ t: Date.now() / 1000, level: "error", code: action, text: (await response.json()).error, session_id: state.selected });
   if (action === "start") state.trajectories[state.selected] = new DecimatedSeries();
 }
@@ -186,12 +212,12 @@ async function configure() {
   const form = $("camera-form").elements;
   for (const key of ["width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"]) camera[key] = Number(form[key].value);
   const body = { orb, camera, fps: Number(form.fps.value), color_space: form.color_space.value };
-  const response = await fetch(withToken("/api/configure"), { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body) });
+  const response = await postJson("/api/configure", body);
   const result = await response.json();
   $("configure-result").textContent = response.ok ? "stored and sent to the mobile stations" : "refused: " + result.error;
 }
 
-$("qr").src = withToken("/api/qr.svg");
+$("pair-phone").onclick = pairPhone;
 $("camera-button").onclick = () => $("camera-dialog").showModal();
 $("configure").onclick = configure;
 $("start").onclick = () => command("start");
@@ -200,4 +226,4 @@ $("resume").onclick = () => command("resume");
 $("plane").onchange = redraw;
 $("session-select").onchange = event => { state.selected = event.target.value; updateStatusBar(); updateBanner(); redraw(); };
 redraw();
-connect();
+logInIfAsked().finally(connect);

@@ -17,17 +17,45 @@ function send(message) {
   if (phone.socket && phone.socket.readyState === WebSocket.OPEN) phone.socket.send(JSON.stringify(message));
 }
 
+// Pairing: the QR code's address carries a one-time code in its fragment (never sent to a
+// server); it is traded once for this phone's own credential, kept in this browser only.
+const CREDENTIAL = "evp.credential";
+async function pairIfAsked() {
+  const code = new URLSearchParams(location.hash.slice(1)).get("pair");
+  if (!code) return;
+  history.replaceState(null, "", location.pathname); // the used code leaves the address bar and the history
+  const response = await fetch("/api/pair", { method: "POST", headers: { "Content-Type": "application/json" },
+    body: JSON.stringify({ code, device: "browser " + navigator.platform }) });
+  const body = await response.json();
+  if (response.ok) { localStorage.setItem(CREDENTIAL, body.credential); log("paired with the station"); }
+  else log("pairing refused: " + body.error + " (ask the operator for a new QR code)");
+}
+
+// The station sends a heartbeat every second: a link silent for 3 s is dead (a Wi-Fi handover
+// leaves no close frame), so drop it and resume the session on a new one at once.
+const DEAD_AFTER_MS = 3000;
 function connect() {
-  const token = new URLSearchParams(location.search).get("token") || "";
   const socket = phone.socket = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws/mobile");
   socket.binaryType = "arraybuffer";
+  phone.heardAt = performance.now();
   socket.onopen = () => {
     $("link").textContent = "up";
+    const token = localStorage.getItem(CREDENTIAL) || "";
     send({ type: "hello", protocol: PROTOCOL, token, device: "browser " + navigator.platform, resume: phone.sessionId });
   };
-  socket.onclose = () => { $("link").textContent = "down (reconnecting)"; setTimeout(connect, 1000); };
-  socket.onmessage = event => onMessage(JSON.parse(event.data));
+  socket.onclose = () => { if (phone.socket === socket) { $("link").textContent = "down (reconnecting)"; setTimeout(connect, 1000); } };
+  socket.onmessage = event => { phone.heardAt = performance.now(); onMessage(JSON.parse(event.data)); };
 }
+
+setInterval(() => {
+  const socket = phone.socket;
+  if (socket && socket.readyState === WebSocket.OPEN && performance.now() - phone.heardAt > DEAD_AFTER_MS) {
+    log("link silent for 3 s: reconnecting");
+    phone.socket = null; // its close event, whenever it comes, is not ours any more
+    socket.close();
+    connect();
+  }
+}, 500);
 
 function onMessage(message) {
   switch (message.type) {
@@ -37,7 +65,10 @@ function onMessage(message) {
     case "dropped": phone.dropped++; break;
     case "enable": $("enable").checked = message.enabled; break;
     case "status": break;
-    case "error": log(`station error ${message.code}: ${message.message}`); break;
+    case "error":
+      log(`station error ${message.code}: ${message.message}`);
+      if (message.code === "bad_token") log("this phone is not paired with the station: scan the QR code on the operator page");
+      break;
   }
   $("poses").textContent = phone.poses; $("dropped").textContent = phone.dropped;
 }
@@ -132,4 +163,4 @@ async function start() {
 
 $("start").onclick = start;
 $("enable").onchange = event => send({ type: "enable", enabled: event.target.checked });
-connect();
+pairIfAsked().finally(connect);

@@ -8,6 +8,7 @@ from pathlib import Path
 import typer
 
 from evp.errors import DatasetError, UsageError
+from evp.io.output_paths import writable_file, writable_folder
 
 app = typer.Typer()
 
@@ -38,6 +39,8 @@ def align(
     from evp.pipeline import run_dataset
     from evp.run_setup import camera_for, make_estimator, resolve_settings
 
+    writable_folder(out)
+    writable_file(json_out, "--json", "metrics.json")
     settings = load_settings(config)
     if mode:
         try:

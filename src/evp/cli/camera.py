@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from evp.io.output_paths import writable_file
+
 app = typer.Typer()
 
 
@@ -14,8 +16,8 @@ def calibrate(
     source: Path = typer.Argument(..., help="Folder of images or a video of the board."),
     out: Path = typer.Option(Path("camera.yaml"), "--out", help="OpenCV FileStorage YAML to write."),
     pattern: str = typer.Option("chessboard", "--pattern", help="chessboard or charuco."),
-    cols: int = typer.Option(..., "--cols", help="Squares across the board."),
-    rows: int = typer.Option(..., "--rows", help="Squares down the board."),
+    cols: int = typer.Option(..., "--cols", help="Squares across the board (inner corners + 1)."),
+    rows: int = typer.Option(..., "--rows", help="Squares down the board (inner corners + 1)."),
     square: float = typer.Option(..., "--square", help="Square side (m)."),
     marker: float = typer.Option(0.0, "--marker", help="ChArUco marker side (m)."),
     dictionary: str = typer.Option("DICT_4X4_50", "--dictionary", help="ArUco dictionary of a ChArUco board."),
@@ -26,8 +28,9 @@ def calibrate(
     from evp.calib.calibrate import BoardSpec, calibrate_views, images_from_path
     from evp.calib.camera_files import write_opencv_yaml
 
+    writable_file(out, example="camera.yaml")
     board = BoardSpec(pattern, cols, rows, square, marker, dictionary)
-    result = calibrate_views(images_from_path(source, every), board, fix_k3=not k3)
+    result = calibrate_views(images_from_path(source, every), board, fix_k3=not k3, source=str(source))
     out.parent.mkdir(parents=True, exist_ok=True)
     # the board and options used are stored beside the result, in the same file
     used = {"rms_reprojection_error_px": result.rms_px, "views_used": len(result.per_view_rms_px), "views_rejected": len(result.rejected)}

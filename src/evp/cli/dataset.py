@@ -8,6 +8,7 @@ from pathlib import Path
 import typer
 
 from evp.errors import DatasetError, InitialisationError, UsageError
+from evp.io.output_paths import writable_folder
 
 app = typer.Typer()
 ALIGNED = {"none": "unaligned", "se3": "SE3-aligned", "sim3": "Sim3-aligned"}
@@ -51,6 +52,7 @@ def run(
     from evp.pipeline import run_dataset
     from evp.run_setup import camera_for, make_estimator, navigation_off, navigation_on_refined, navigation_stage, resolve_settings
 
+    writable_folder(out)
     settings = load_settings(config)
     if estimator_name is not None:
         settings = with_estimator(settings, estimator_name)

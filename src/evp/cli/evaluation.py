@@ -8,6 +8,7 @@ from pathlib import Path
 import typer
 
 from evp.errors import DataError, EvaluationError, UsageError
+from evp.io.output_paths import writable_file, writable_folder
 
 app = typer.Typer()
 
@@ -64,6 +65,8 @@ def evaluate_command(
 
     from evp.config import EvalSettings, validation_message
 
+    writable_file(json_out, "--json", "metrics.json")
+    writable_folder(report, "--report")
     try:
         settings = EvalSettings(
             align=align,
@@ -110,6 +113,7 @@ def convert(
     """Convert a trajectory between formats (full float precision)."""
     from evp.io.trajectory import TrajectoryFormat, read_timestamps, read_trajectory, write_trajectory
 
+    writable_file(dst, "DST", "poses.tum")
     trajectory = read_trajectory(src)
     if times is not None:
         stamps = read_timestamps(times)

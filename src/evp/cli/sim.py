@@ -12,6 +12,7 @@ from pathlib import Path
 import typer
 
 from evp.errors import ConfigError, UsageError
+from evp.io.output_paths import writable_folder
 
 app = typer.Typer()
 
@@ -81,6 +82,7 @@ def sim(
         return
     if scenario is None or out is None:
         raise UsageError("give a scenario and --out DIR (or --list)")
+    writable_folder(out)
     from rich.progress import Progress
 
     from evp.sim.generate import generate

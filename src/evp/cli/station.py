@@ -9,6 +9,7 @@ from pathlib import Path
 import typer
 
 from evp.errors import DataError, UsageError
+from evp.io.output_paths import writable_folder
 
 app = typer.Typer()
 
@@ -83,6 +84,7 @@ def stream(
     quiet: bool = typer.Option(False, "--quiet", help="Print only the summary, not each pose."),
 ) -> None:
     """Stream to a base station as a mobile station would; prints each pose, then a JSON summary."""
+    writable_folder(out)
     summary = run_stream(source, url, realtime, encoding, jpeg_quality, camera, max_frames, token, resume, cafile, fingerprint, out, quiet, typer.echo)
     typer.echo(json.dumps(summary))
 
@@ -130,4 +132,5 @@ def replay(
     all_frames: bool = typer.Option(False, "--all-frames", help="Also estimate the frames the live station dropped as stale."),
 ) -> None:
     """Re-run a recorded session offline and compare with the poses sent live."""
+    writable_folder(out)
     typer.echo(json.dumps(run_replay(session, data, db, out, all_frames), indent=2))

@@ -562,10 +562,33 @@ def read_settings_yaml(path: Path) -> dict:
     return load_yaml_mapping(path, lambda p, msg, line=None: ConfigError(f"{p}" + (f", line {line}" if line else "") + f": {msg}"))
 
 
-def validation_message(exc: ValidationError) -> str:
-    """The first problem pydantic found, as 'field.path: message (got value)'."""
+def validation_message(exc: ValidationError, model: type[BaseModel] | None = None) -> str:
+    """The first problem pydantic found, as 'field.path: message (got value)'; a key that does not
+    exist in ``model`` (the settings class validated) gets the nearest key of its section named."""
     first = exc.errors()[0]
-    return f"{'.'.join(str(p) for p in first['loc'])}: {first['msg']} (got {first.get('input')!r})"
+    where = ".".join(str(p) for p in first["loc"])
+    if first["type"] == "extra_forbidden" and model is not None:
+        return f"{where}: no such setting{_did_you_mean(model, first['loc'])}"
+    return f"{where}: {first['msg']} (got {first.get('input')!r})"
+
+
+def _did_you_mean(model: type[BaseModel], loc: tuple) -> str:
+    """'; did you mean section.key?' for the unknown key at ``loc``, or the section's keys when none is close."""
+    from difflib import get_close_matches
+
+    section = model
+    for part in loc[:-1]:
+        field = section.model_fields.get(str(part))
+        annotation = field.annotation if field is not None else None
+        if not (isinstance(annotation, type) and issubclass(annotation, BaseModel)):
+            return ""
+        section = annotation
+    prefix = "".join(f"{part}." for part in loc[:-1])
+    names = list(section.model_fields)
+    close = get_close_matches(str(loc[-1]), names, n=1, cutoff=0.6)
+    if close:
+        return f"; did you mean {prefix}{close[0]}?"
+    return f"; {prefix.rstrip('.') or 'the top level'} has " + ", ".join(names)
 
 
 def load_settings(path: str | Path | None = None) -> Settings:
@@ -581,7 +604,7 @@ def load_settings(path: str | Path | None = None) -> Settings:
     try:
         return Settings.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(f"{path}: {validation_message(exc)}") from exc
+        raise ConfigError(f"{path}: {validation_message(exc, Settings)}") from exc
 
 
 def settings_yaml(settings: Settings) -> str:

@@ -174,7 +174,7 @@ def test_unknown_paths(tmp_path):
         open_dataset(tmp_path / "nothing")
     (tmp_path / "notes").mkdir()
     (tmp_path / "notes" / "a.md").write_text("hello")
-    with pytest.raises(UnknownFormatError, match="not a dataset"):
+    with pytest.raises(UnknownFormatError, match="no images, video or recording here"):
         open_dataset(tmp_path / "notes")
     with pytest.raises(UnknownFormatError, match="unknown dataset format"):
         open_dataset(tmp_path / "notes", "lidar-scans")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from difflib import get_close_matches
 from importlib import resources
 from pathlib import Path
 
@@ -23,7 +24,9 @@ def load_profile(name: str) -> CameraModel:
     """A shipped camera profile by name, e.g. ``nexus5x_640x380`` (seed 000's phone)."""
     path = _profile_dir() / f"{name}.yaml"
     if not path.is_file():
-        raise UsageError(f"unknown camera profile {name!r}; known: {', '.join(profile_names())}")
+        close = get_close_matches(name, profile_names(), n=1, cutoff=0.5)
+        guess = f"did you mean {close[0]}? " if close else ""
+        raise UsageError(f"unknown camera profile {name!r}; {guess}known: {', '.join(profile_names())} (or give a calibration file)")
     return read_camera(path)
 
 

@@ -47,6 +47,7 @@ def run(
     from rich.progress import Progress
 
     from evp.config import load_settings
+    from evp.estimator import NOT_INITIALISED_HINT
     from evp.io.registry import open_dataset
     from evp.io.run_outputs import write_outputs
     from evp.pipeline import run_dataset
@@ -83,7 +84,7 @@ def run(
         frames = f"{dataset.num_frames} frame" + ("s" if dataset.num_frames != 1 else "")
         raise InitialisationError(
             f"{dataset.name}: too short or too still to initialise: no frame tracked in {frames} ({dataset.frame_times[-1] - dataset.frame_times[0]:.2f} s); "
-            f"monocular initialisation needs two views with parallax between them (outputs in {out})"
+            f"{NOT_INITIALISED_HINT} (outputs in {out})"
         )
     typer.echo(
         f"{dataset.name}: tracked {metrics['tracked_frames']}/{metrics['frames']} frames "

@@ -41,7 +41,7 @@ def sim_options(config: Path | None, typed: dict, typed_gps: dict):
     try:
         return SimOptions.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(f"simulation option {validation_message(exc)}") from exc
+        raise ConfigError(f"simulation option {validation_message(exc, SimOptions)}") from exc
 
 
 @app.command()
@@ -52,7 +52,9 @@ def sim(
     duration: float | None = typer.Option(None, "--duration", help="Seconds (default: the scenario's)."),
     seed: int | None = typer.Option(None, "--seed", help="Random seed (noise, textures, paths)."),
     fps: float | None = typer.Option(None, "--fps", help="Camera frame rate."),
-    camera: str | None = typer.Option(None, "--camera", help="nexus5x_640x380, global_752x480, phone_1280x720, car_1241x376 or car_640x194."),
+    camera: str | None = typer.Option(
+        None, "--camera", help="Camera profile (evp camera list): nexus5x_640x380, global_shutter_752x480, phone_1280x720, car_1241x376 or car_640x194."
+    ),
     lens: str | None = typer.Option(None, "--lens", help="pinhole (the camera preset's lens) or fisheye (equidistant, at the preset's resolution)."),
     fisheye_fov: float | None = typer.Option(None, "--fisheye-fov", help="Fisheye diagonal field of view, 120-180 degrees (corner to corner; 150 by default)."),
     texture: str | None = typer.Option(None, "--texture", help="rich, low, floor, wall, or image file(s) separated by commas."),

@@ -87,6 +87,10 @@ def stream(
     writable_folder(out)
     summary = run_stream(source, url, realtime, encoding, jpeg_quality, camera, max_frames, token, resume, cafile, fingerprint, out, quiet, typer.echo)
     typer.echo(json.dumps(summary))
+    from evp.estimator import NOT_INITIALISED_HINT
+
+    if summary["poses_received"] and not summary["poses_tracked"]:
+        typer.echo(f"warning: the station tracked none of the {summary['poses_received']} frames it answered: {NOT_INITIALISED_HINT}", err=True)
 
 
 def _session_reference(session: str, data: Path) -> tuple[str, Path]:

@@ -110,10 +110,16 @@ def test_tum_known_kinect_intrinsics_are_used(tmp_path):
 
 
 def test_image_folder_without_calibration(tmp_path):
+    """It reads (evp info shows it, --camera can complete it); a run without a camera is refused."""
+    from evp.config import Settings
+    from evp.run_setup import camera_for
+
     root = builders.make_image_folder(tmp_path / "ds")
     (root / "calib.txt").unlink()
-    with pytest.raises(CalibrationError, match="no calibration file"):
-        open_dataset(root)
+    dataset = open_dataset(root)
+    assert dataset.camera is None and any("no calibration file" in note for note in dataset.notes)
+    with pytest.raises(CalibrationError, match="give --camera FILE"):
+        camera_for(dataset, Settings())
 
 
 def test_image_folder_calibration_for_another_resolution(tmp_path):

@@ -23,6 +23,9 @@ def align(
     mode: str | None = typer.Option(None, "--mode", help="2d+baro or 3d+baro."),
     config: Path | None = typer.Option(None, "--config", help="Settings YAML (align, gps_monitor, vo sections)."),
     fmt: str | None = typer.Option(None, "--format", help="Reader name, to skip auto-detection."),
+    camera: str | None = typer.Option(
+        None, "--camera", help="Calibration file (OpenCV, ROS, ORB-SLAM, Kalibr, EuRoC, calib.txt) or profile name (evp camera list), instead of the dataset's."
+    ),
 ) -> None:
     """Align the visual track to GPS (seed 002), report the error against GPS after the alignment
     phase, and check GPS for spoofing and jamming."""
@@ -37,11 +40,11 @@ def align(
     from evp.io.registry import open_dataset
     from evp.io.trajectory import read_trajectory
     from evp.pipeline import run_dataset
-    from evp.run_setup import camera_for, make_estimator, resolve_settings
+    from evp.run_setup import camera_for, make_estimator, resolve_settings, with_camera
 
     writable_folder(out)
     writable_file(json_out, "--json", "metrics.json")
-    settings = load_settings(config)
+    settings = with_camera(load_settings(config), camera)
     if mode:
         try:
             settings = settings.model_copy(update={"align": AlignmentSettings(**{**settings.align.model_dump(), "mode": mode})})

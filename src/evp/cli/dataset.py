@@ -19,12 +19,21 @@ def info(
     path: Path = typer.Argument(..., help="Dataset folder or file (format auto-detected)."),
     fmt: str | None = typer.Option(None, "--format", help="Reader name, to skip auto-detection."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of text."),
+    camera: str | None = typer.Option(
+        None, "--camera", help="Calibration file (OpenCV, ROS, ORB-SLAM, Kalibr, EuRoC, calib.txt) or profile name (evp camera list), instead of the dataset's."
+    ),
 ) -> None:
     """Print what a dataset holds: format, frames, rate, duration, sensors, calibration, ground truth."""
+    from evp.calib.profiles import camera_from
     from evp.io.registry import open_dataset
     from evp.io.summary import describe, summarise
+    from evp.run_setup import frame_size
 
-    summary = summarise(open_dataset(path, fmt))
+    dataset = open_dataset(path, fmt)
+    if camera is not None:
+        dataset.camera = camera_from(camera, frame_size(dataset))
+        dataset.notes.append(f"calibration: --camera {camera}")
+    summary = summarise(dataset)
     typer.echo(json.dumps(summary, indent=2) if as_json else describe(summary))
 
 
@@ -41,6 +50,9 @@ def run(
     ),
     speed: float = typer.Option(1.0, "--speed", min=0.01, help="With --realtime: play the recording this many times faster."),
     estimator_name: str | None = typer.Option(None, "--estimator", help="Override the settings' estimator: auto, slam, klt-vo, nadir or ekf-slam."),
+    camera: str | None = typer.Option(
+        None, "--camera", help="Calibration file (OpenCV, ROS, ORB-SLAM, Kalibr, EuRoC, calib.txt) or profile name (evp camera list), instead of the dataset's."
+    ),
 ) -> None:
     """Estimate the camera trajectory of a dataset and evaluate it when ground truth exists."""
     from rich.console import Console
@@ -51,10 +63,10 @@ def run(
     from evp.io.registry import open_dataset
     from evp.io.run_outputs import write_outputs
     from evp.pipeline import run_dataset
-    from evp.run_setup import camera_for, make_estimator, navigation_off, navigation_on_refined, navigation_stage, resolve_settings
+    from evp.run_setup import camera_for, make_estimator, navigation_off, navigation_on_refined, navigation_stage, resolve_settings, with_camera
 
     writable_folder(out)
-    settings = load_settings(config)
+    settings = with_camera(load_settings(config), camera)
     if estimator_name is not None:
         settings = with_estimator(settings, estimator_name)
     dataset = open_dataset(dataset_path, fmt)

@@ -53,6 +53,13 @@ class EvalSettings(_Section):
     rpe_all_pairs: bool = Field(False, description="every pair at the distance, not consecutive ones")
     z_target_m: float | None = Field(None, description="also report the poses whose reference z is within z_tolerance_m of this")
     z_tolerance_m: float = Field(2.0, gt=0)
+    rotation: bool = Field(
+        True,
+        description="the reference measures orientation: APE rotation and RPE are reported; false for position-only references (GPS, 2-D tracks), whose placeholder orientation would give meaningless figures (evp run sets it from the dataset)",
+    )
+    plane: Literal["auto", "xy", "xz", "yz"] = Field(
+        "auto", description="plane of the top view and the in-plane error; auto: the one the reference moves in (evp.eval.plane), e.g. x-z for a KITTI drive"
+    )
 
 
 class VoSettings(_Section):

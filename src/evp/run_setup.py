@@ -88,6 +88,8 @@ def resolve_settings(settings: Settings, dataset: Dataset) -> Settings:
     update: dict = {"max_time_diff_s": max_time_diff_s}
     if estimator in METRIC_ESTIMATORS and "align" not in settings.eval.model_fields_set:
         update["align"] = "se3"
+    if not dataset.ground_truth_orientation and "rotation" not in settings.eval.model_fields_set:
+        update["rotation"] = False
     evaluation = settings.eval.model_copy(update=update)
     return settings.model_copy(update={"estimator": estimator, "eval": evaluation})
 

@@ -30,9 +30,9 @@ def align(
     """Align the visual track to GPS (seed 002), report the error against GPS after the alignment
     phase, and check GPS for spoofing and jamming."""
     from pydantic import ValidationError
-    from rich.progress import Progress
 
     from evp.cli.dataset import echo_warnings
+    from evp.cli.progress import progress_of
     from evp.config import AlignmentSettings, load_settings, write_settings
     from evp.eval.flight_report import flight_summary, write_flight_report
     from evp.fusion.flight import process_flight
@@ -59,9 +59,8 @@ def align(
         if dataset.num_frames == 0:
             raise DatasetError(flight, "no images to estimate a visual track from; give --trajectory")
         estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
-        with Progress(transient=True) as progress:
-            task = progress.add_task(f"visual odometry {dataset.name}", total=dataset.num_frames)
-            odometry = run_dataset(dataset, estimator, lambda n: progress.advance(task, n)).segments()
+        with progress_of(f"visual odometry {dataset.name}", dataset.num_frames) as progress:
+            odometry = run_dataset(dataset, estimator, progress.advance).segments()
     if not dataset.gps:
         raise AlignmentError(f"{dataset.root}: the dataset has no GPS fixes to align to")
     result = process_flight(dataset.gps, dataset.baro, odometry, settings.align, settings.gps_monitor, align_fraction)

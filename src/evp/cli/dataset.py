@@ -55,9 +55,7 @@ def run(
     ),
 ) -> None:
     """Estimate the camera trajectory of a dataset and evaluate it when ground truth exists."""
-    from rich.console import Console
-    from rich.progress import Progress
-
+    from evp.cli.progress import progress_of, status_of
     from evp.config import load_settings
     from evp.estimator import NOT_INITIALISED_HINT
     from evp.io.registry import open_dataset
@@ -78,15 +76,14 @@ def run(
     navigation = navigation_stage(dataset, settings, estimator)
     if navigation is None and dataset.imu:
         typer.echo(f"warning: the IMU is not fused: {navigation_off(dataset, settings)}", err=True)
-    with Progress(transient=True) as progress:
-        task = progress.add_task(f"{dataset.name}", total=dataset.num_frames)
+    with progress_of(dataset.name, dataset.num_frames) as progress:
         # a real-time replay has no spare time to also run OpenCV's ORB on each frame
         reference_orb = None if realtime else settings.orb.n_features
         stages = [navigation] if navigation is not None else []
-        result = run_dataset(dataset, estimator, lambda n: progress.advance(task, n), reference_orb, speed if realtime else None, stages=stages)
+        result = run_dataset(dataset, estimator, progress.advance, reference_orb, speed if realtime else None, stages=stages)
     # a survey adjustment or a global bundle adjustment: seconds after the last frame (the result
     # keeps it for write_outputs)
-    with Console(stderr=True).status(f"{dataset.name}: refining the trajectory (end of run)"):
+    with status_of(f"{dataset.name}: refining the trajectory (end of run)"):
         result.final_trajectory()
         refined_navigation = None
         if navigation is not None and settings.navigation.refine_offline and result.refined is not None and len(result.refined) >= 2:

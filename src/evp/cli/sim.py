@@ -85,8 +85,7 @@ def sim(
     if scenario is None or out is None:
         raise UsageError("give a scenario and --out DIR (or --list)")
     writable_folder(out)
-    from rich.progress import Progress
-
+    from evp.cli.progress import progress_of
     from evp.sim.generate import generate
 
     typed = dict(duration_s=duration, seed=seed, fps=fps, camera=camera, texture=texture, altitude_m=altitude, speed_m_s=speed, pattern=pattern)
@@ -95,9 +94,8 @@ def sim(
     typed_gps = dict(clock_offset_s=gps_offset, spoof_start_s=spoof_start, spoof_mode=spoof_mode, spoof_rate_m_s=spoof_rate, spoof_jump_m=spoof_jump)
     typed_gps["outages"] = [_outage(o) for o in outage] or None
     options = sim_options(config, typed, typed_gps)
-    with Progress(transient=True) as progress:
-        task = progress.add_task(f"{scenario}", total=None)
-        result = generate(scenario, options, out, workers, lambda n: progress.advance(task, n), lambda total: progress.update(task, total=total))
+    with progress_of(scenario, None) as progress:
+        result = generate(scenario, options, out, workers, progress.advance, lambda total: setattr(progress, "total", total))
     typer.echo(
         f"{scenario}: {result.frames} frames ({len(result.dropped)} dropped), {result.scenario.motion.duration:.1f} s, sensors {', '.join(result.scenario.sensors)} -> {out}"
     )

@@ -105,8 +105,7 @@ def _session_reference(session: str, data: Path) -> tuple[str, Path]:
 
 def run_replay(session: str, data: Path, db: str | None, out: Path | None, all_frames: bool) -> dict:
     """Re-run a recorded session; its comparison with the live poses (written to ``out`` when given)."""
-    from rich.progress import Progress
-
+    from evp.cli.progress import progress_of
     from evp.station.replay import compare_with_live, write_replay
     from evp.station.replay import replay as replay_session
     from evp.station.store import SessionStore
@@ -119,9 +118,8 @@ def run_replay(session: str, data: Path, db: str | None, out: Path | None, all_f
     try:
         row = store.session(session_id)
         total = row["frames_received"] if row else None
-        with Progress(transient=True) as progress:
-            task = progress.add_task(f"replay {session_id}", total=total or None)
-            poses = replay_session(store, session_id, all_frames, lambda n: progress.advance(task, n))
+        with progress_of(f"replay {session_id}", total or None) as progress:
+            poses = replay_session(store, session_id, all_frames, progress.advance)
         return write_replay(out, store, session_id, poses) if out else compare_with_live(store, session_id, poses)
     finally:
         store.close()

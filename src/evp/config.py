@@ -146,6 +146,10 @@ class AlignmentSettings(_Section):
     """The alignment phase of seed 002 (``evp align``)."""
 
     mode: str = Field("3d+baro", pattern=r"^(2d|3d)\+baro$", description="2d+baro or 3d+baro (seed 002)")
+    visual_track: Literal["refined", "live"] = Field(
+        "refined",
+        description="refined: the estimator's trajectory adjusted at the end (SLAM's global bundle adjustment, the survey adjustment; what evp run writes as trajectory.tum), when it offers one; live: the poses as answered frame by frame (faster, weaker: Toledo 3.5 m mean error against 1.8 m)",
+    )
     model: str = Field("auto", pattern="^(affine|similarity|auto)$", description="auto: chosen by the grid search")
     window_s: float = Field(70.0, gt=0, description="alignment phase length (paper: 70 s)")
     target_altitude_m: float | None = Field(None, description="None: the flight's typical altitude (90th percentile of GPS up)")

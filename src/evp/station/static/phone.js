@@ -4,7 +4,12 @@
 
 const $ = id => document.getElementById(id);
 const PROTOCOL = 1, ENCODING = { jpeg: 1, png: 2 };
-const phone = { socket: null, config: null, sessionId: null, nextSeq: 0, sent: 0, poses: 0, dropped: 0, imu: 0, gps: 0, stream: null, timer: null };
+const phone = { socket: null, config: null, sessionId: null, nextSeq: 0, sent: 0, poses: 0, dropped: 0, errors: 0, skipped: 0, imu: 0, gps: 0,
+                stream: null, timer: null, sending: Promise.resolve(), inFlight: 0 };
+const TOKEN = new URLSearchParams(location.search).get("token") || "";
+// frames captured but not yet sent (being encoded): beyond this the phone is behind, and a new
+// frame is skipped at capture rather than queued (the station wants the newest frame anyway)
+const MAX_IN_FLIGHT = 2;
 window.evpPhone = phone;
 
 function log(text) {
@@ -17,13 +22,24 @@ function send(message) {
   if (phone.socket && phone.socket.readyState === WebSocket.OPEN) phone.socket.send(JSON.stringify(message));
 }
 
+// The link opens (and the station starts a session, with its recording) only once the camera
+// runs: a phone that opens this page and never streams leaves no empty session behind. Until
+// then the station's camera settings come from its state over HTTP.
+async function loadConfig() {
+  try {
+    const response = await fetch("/api/state" + (TOKEN ? "?token=" + encodeURIComponent(TOKEN) : ""));
+    if (!response.ok) { log(`station: ${response.status} ${(await response.json()).error || ""}`); return; }
+    phone.config = (await response.json()).config;
+    $("link").textContent = "ready (opens when the camera starts)";
+  } catch (error) { log("station unreachable: " + error); setTimeout(loadConfig, 2000); }
+}
+
 function connect() {
-  const token = new URLSearchParams(location.search).get("token") || "";
   const socket = phone.socket = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws/mobile");
   socket.binaryType = "arraybuffer";
   socket.onopen = () => {
     $("link").textContent = "up";
-    send({ type: "hello", protocol: PROTOCOL, token, device: "browser " + navigator.platform, resume: phone.sessionId });
+    send({ type: "hello", protocol: PROTOCOL, token: TOKEN, device: "browser " + navigator.platform, resume: phone.sessionId });
   };
   socket.onclose = () => { $("link").textContent = "down (reconnecting)"; setTimeout(connect, 1000); };
   socket.onmessage = event => onMessage(JSON.parse(event.data));
@@ -31,13 +47,16 @@ function connect() {
 
 function onMessage(message) {
   switch (message.type) {
-    case "welcome": phone.sessionId = message.session_id; phone.nextSeq = message.next_seq; $("session").textContent = message.session_id; break;
+    case "welcome":
+      phone.sessionId = message.session_id; phone.nextSeq = message.next_seq; $("session").textContent = message.session_id;
+      if (phone.stream && !phone.sensing) { phone.sensing = true; startSensors(); } // once the link is up: the first fix is not lost
+      break;
     case "config": phone.config = message; log(`config: ${message.camera.width}x${message.camera.height} at ${message.fps} fps, ${message.encoding}`); if (phone.stream) announce(); break;
     case "pose": phone.poses++; showPose(message); break;
     case "dropped": phone.dropped++; break;
     case "enable": $("enable").checked = message.enabled; break;
     case "status": break;
-    case "error": log(`station error ${message.code}: ${message.message}`); break;
+    case "error": phone.errors++; log(`station error ${message.code}: ${message.message}`); break;
   }
   $("poses").textContent = phone.poses; $("dropped").textContent = phone.dropped;
 }
@@ -69,22 +88,25 @@ function header(seq, timestamp, encoding, width, height, length) {
   return view.buffer;
 }
 
+// A frame's sequence number and timestamp are taken together, when it is captured, and frames
+// are sent in capture order: encoding (toBlob) is asynchronous, and a loaded phone finishes two
+// encodings out of order, which the station refuses as out of order (docs/protocol.md).
 function captureFrame() {
   const c = phone.config, video = $("preview"), canvas = $("frame");
   if (!c || video.readyState < 2 || !phone.socket || phone.socket.readyState !== WebSocket.OPEN) return;
-  if (phone.socket.bufferedAmount > 1 << 20) return; // the link is behind: skip rather than queue
+  if (phone.socket.bufferedAmount > 1 << 20 || phone.inFlight >= MAX_IN_FLIGHT) { $("skipped").textContent = ++phone.skipped; return; } // behind: skip rather than queue
   canvas.width = c.camera.width; canvas.height = c.camera.height;
   canvas.getContext("2d").drawImage(video, 0, 0, canvas.width, canvas.height);
-  const timestamp = performance.now() / 1000, encoding = c.encoding === "png" ? "png" : "jpeg";
-  canvas.toBlob(async blob => {
-    const payload = await blob.arrayBuffer();
-    const seq = phone.nextSeq++;
+  const seq = phone.nextSeq++, timestamp = performance.now() / 1000, encoding = c.encoding === "png" ? "png" : "jpeg";
+  const { width, height } = canvas;
+  const encoded = new Promise(resolve => canvas.toBlob(resolve, "image/" + encoding, (c.jpeg_quality || 85) / 100)).then(blob => blob.arrayBuffer());
+  phone.inFlight++;
+  phone.sending = phone.sending.then(() => encoded).then(payload => {
     const frame = new Uint8Array(32 + payload.byteLength);
-    frame.set(new Uint8Array(header(seq, timestamp, encoding, canvas.width, canvas.height, payload.byteLength)), 0);
+    frame.set(new Uint8Array(header(seq, timestamp, encoding, width, height, payload.byteLength)), 0);
     frame.set(new Uint8Array(payload), 32);
-    phone.socket.send(frame.buffer);
-    phone.sent++; $("sent").textContent = phone.sent;
-  }, "image/" + encoding, (c.jpeg_quality || 85) / 100);
+    if (phone.socket.readyState === WebSocket.OPEN) { phone.socket.send(frame.buffer); phone.sent++; $("sent").textContent = phone.sent; }
+  }).catch(error => log("frame " + seq + ": " + error)).finally(() => { phone.inFlight--; });
 }
 
 // The back camera in the phone's IMU axes (W3C device axes: x right, y to the top of the screen,
@@ -125,11 +147,10 @@ async function start() {
       facingMode: "environment", width: { ideal: c.camera.width }, height: { ideal: c.camera.height }, frameRate: { ideal: c.fps } } });
   } catch (error) { log("camera: " + error); return; }
   $("preview").srcObject = phone.stream;
-  startSensors();
-  announce();
+  connect(); // the station answers hello with its config, which starts the frames (announce)
   $("start").disabled = true;
 }
 
 $("start").onclick = start;
 $("enable").onchange = event => send({ type: "enable", enabled: event.target.checked });
-connect();
+loadConfig();

@@ -110,7 +110,7 @@ def test_camera_profile_names_are_one_list(monkeypatch, capsys, tmp_path):
 
     for name in profile_names():
         assert build_scenario("drone-flight", SimOptions(camera=name, duration_s=0.2)).camera.width > 0
-    code, err = evp_main(monkeypatch, capsys, "sim", "drone-flight", "--camera", "global_752x480", "--out", tmp_path / "sim", "--duration", "0.2")
+    code, err = evp_main(monkeypatch, capsys, "sim", "drone-flight", "--camera", "global_shuter_752x480", "--out", tmp_path / "sim", "--duration", "0.2")
     assert code == ExitCode.USAGE
     assert "did you mean global_shutter_752x480?" in one_line_error(err)
 

@@ -20,9 +20,14 @@ def profile_names() -> list[str]:
     return sorted(p.stem for p in _profile_dir().glob("*.yaml"))
 
 
+# names a profile went by before issue 35 made evp sim use the profile names; the shipped
+# vocabulary's notes record its training scenes with this one
+FORMER_NAMES = {"global_752x480": "global_shutter_752x480"}
+
+
 def load_profile(name: str) -> CameraModel:
     """A shipped camera profile by name, e.g. ``nexus5x_640x380`` (seed 000's phone)."""
-    path = _profile_dir() / f"{name}.yaml"
+    path = _profile_dir() / f"{FORMER_NAMES.get(name, name)}.yaml"
     if not path.is_file():
         close = get_close_matches(name, profile_names(), n=1, cutoff=0.5)
         guess = f"did you mean {close[0]}? " if close else ""

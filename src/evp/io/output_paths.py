@@ -27,11 +27,14 @@ def _reason(exc: OSError, path: Path) -> str:
 
 
 def writable_folder(path: Path | None, option: str = "--out") -> Path | None:
-    """``path``, made if missing, when a command can write its results into it; else a UsageError."""
+    """``path`` when a command can write its results into it (made when missing); else a
+    UsageError. The check leaves nothing behind: folders it made for the test are removed, so a
+    command that fails later on bad input has created nothing."""
     if path is None:
         return None
     if path.exists() and not path.is_dir():
         raise UsageError(f"{option} {path}: is a file, and a folder is needed here (it is made when missing); choose another name")
+    made = [p for p in (path, *path.parents) if not p.exists()]
     try:
         path.mkdir(parents=True, exist_ok=True)
         probe = path / ".evp-write-check"
@@ -39,6 +42,10 @@ def writable_folder(path: Path | None, option: str = "--out") -> Path | None:
         probe.unlink()
     except OSError as exc:
         raise UsageError(f"{option} {path}: {_reason(exc, path)}; choose a folder you can write") from None
+    finally:
+        for folder in made:  # deepest first
+            if folder.is_dir():
+                folder.rmdir()
     return path
 
 

@@ -35,8 +35,7 @@ CACHE = Path(tempfile.gettempdir()) / "evp-bench-toledo-survey-inputs.npz"
 COLUMNS = [
     ("implementation", "{method}"),
     ("adjustments", "{adjustments}"),
-    ("time (s)", "{seconds:.1f}"),
-    ("time / EVP's", "{time_ratio:.2f}"),
+    ("time (s; not comparable: run at different loads and priorities)", "{seconds:.0f}"),
     ("f (px; EXIF 693)", "{f_px:.1f}"),
     ("k1", "{k1:.3f}"),
     ("k2", "{k2:.3f}"),
@@ -101,15 +100,13 @@ def main() -> None:
     camera, poses, tracks, stamps, dataset = survey_inputs()
     print(f"Toledo: {len(poses)} photos, {tracks.num_tracks} tracks, {len(tracks.image_index)} observations", flush=True)
     results = Results("survey_self_calibration", " ".join(["python", *sys.argv]))
-    caption = "The Toledo survey's lens self-calibration on the same inputs, in one run: time ratios, lens, positions against GPS."
+    caption = "The Toledo survey's lens self-calibration on the same cached inputs: adjustments needed, lens found, positions against GPS. Both lenses lie on the focal-height ridge the module doc describes."
     table = results.table("toledo", COLUMNS, key=["method"], caption=caption)
     print(table.header())
     ours = measure(survey_adjustment, "EVP: Gauss-Newton lens search", camera, poses, tracks, stamps, dataset)
-    ours["time_ratio"] = 1.0
     print(table.add(ours), flush=True)
     if args.baseline is not None:
         baseline = measure(load_module(args.baseline), args.baseline_name, camera, poses, tracks, stamps, dataset)
-        baseline["time_ratio"] = baseline["seconds"] / ours["seconds"]
         print(table.add(baseline), flush=True)
 
 

@@ -12,8 +12,9 @@ cost, measured in the photos' own pixels, is minimised over the three as a least
 (each observation's truncated error a residual; each residual evaluation one bundle adjustment,
 so the lens is the outer variable of a variable projection): Gauss-Newton with finite-difference
 derivatives takes 33-41 adjustments where the Nelder-Mead search it replaced took 91, to the same
-lens on the synthetic surveys of the tests, and 31 on Toledo to the same lens (f = 621.4 px,
-k1 = -0.085, k2 = 0.059; 1.80 m against GPS; bench/survey_self_calibration.py).
+lens on the synthetic surveys of the tests; on Toledo 31 adjustments (f = 621.4 px, k1 = -0.085,
+k2 = 0.059; 1.80 m against GPS) against 91 (f = 539.3 px, 1.70 m: the same ridge;
+bench/survey_self_calibration.py).
 One joint adjustment with the lens among the variables was tried with SciPy's sparse
 trust-region solver and did not converge in 300 evaluations along the focal-height ridge (the
 project's Schur-complement bundle adjustment has no lens variables). Over perfectly flat ground the focal length trades against height; the relief

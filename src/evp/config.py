@@ -53,6 +53,13 @@ class EvalSettings(_Section):
     rpe_all_pairs: bool = Field(False, description="every pair at the distance, not consecutive ones")
     z_target_m: float | None = Field(None, description="also report the poses whose reference z is within z_tolerance_m of this")
     z_tolerance_m: float = Field(2.0, gt=0)
+    rotation: bool = Field(
+        True,
+        description="the reference measures orientation: APE rotation and RPE are reported; false for position-only references (GPS, 2-D tracks), whose placeholder orientation would give meaningless figures (evp run sets it from the dataset)",
+    )
+    plane: Literal["auto", "xy", "xz", "yz"] = Field(
+        "auto", description="plane of the top view and the in-plane error; auto: the one the reference moves in (evp.eval.plane), e.g. x-z for a KITTI drive"
+    )
 
 
 class VoSettings(_Section):
@@ -148,6 +155,10 @@ class AlignmentSettings(_Section):
     """The alignment phase of seed 002 (``evp align``)."""
 
     mode: str = Field("3d+baro", pattern=r"^(2d|3d)\+baro$", description="2d+baro or 3d+baro (seed 002)")
+    visual_track: Literal["refined", "live"] = Field(
+        "refined",
+        description="refined: the estimator's trajectory adjusted at the end (SLAM's global bundle adjustment, the survey adjustment; what evp run writes as trajectory.tum), when it offers one; live: the poses as answered frame by frame (faster, weaker: Toledo 3.5 m mean error against 1.8 m)",
+    )
     model: str = Field("auto", pattern="^(affine|similarity|auto)$", description="auto: chosen by the grid search")
     window_s: float = Field(70.0, gt=0, description="alignment phase length (paper: 70 s)")
     target_altitude_m: float | None = Field(None, description="None: the flight's typical altitude (90th percentile of GPS up)")
@@ -640,10 +651,33 @@ def read_settings_yaml(path: Path) -> dict:
     return load_yaml_mapping(path, lambda p, msg, line=None: ConfigError(f"{p}" + (f", line {line}" if line else "") + f": {msg}"))
 
 
-def validation_message(exc: ValidationError) -> str:
-    """The first problem pydantic found, as 'field.path: message (got value)'."""
+def validation_message(exc: ValidationError, model: type[BaseModel] | None = None) -> str:
+    """The first problem pydantic found, as 'field.path: message (got value)'; a key that does not
+    exist in ``model`` (the settings class validated) gets the nearest key of its section named."""
     first = exc.errors()[0]
-    return f"{'.'.join(str(p) for p in first['loc'])}: {first['msg']} (got {first.get('input')!r})"
+    where = ".".join(str(p) for p in first["loc"])
+    if first["type"] == "extra_forbidden" and model is not None:
+        return f"{where}: no such setting{_did_you_mean(model, first['loc'])}"
+    return f"{where}: {first['msg']} (got {first.get('input')!r})"
+
+
+def _did_you_mean(model: type[BaseModel], loc: tuple) -> str:
+    """'; did you mean section.key?' for the unknown key at ``loc``, or the section's keys when none is close."""
+    from difflib import get_close_matches
+
+    section = model
+    for part in loc[:-1]:
+        field = section.model_fields.get(str(part))
+        annotation = field.annotation if field is not None else None
+        if not (isinstance(annotation, type) and issubclass(annotation, BaseModel)):
+            return ""
+        section = annotation
+    prefix = "".join(f"{part}." for part in loc[:-1])
+    names = list(section.model_fields)
+    close = get_close_matches(str(loc[-1]), names, n=1, cutoff=0.6)
+    if close:
+        return f"; did you mean {prefix}{close[0]}?"
+    return f"; {prefix.rstrip('.') or 'the top level'} has " + ", ".join(names)
 
 
 def load_settings(path: str | Path | None = None) -> Settings:
@@ -659,7 +693,7 @@ def load_settings(path: str | Path | None = None) -> Settings:
     try:
         return Settings.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(f"{path}: {validation_message(exc)}") from exc
+        raise ConfigError(f"{path}: {validation_message(exc, Settings)}") from exc
 
 
 def settings_yaml(settings: Settings) -> str:

@@ -14,6 +14,12 @@ import numpy as np
 
 from evp.types import CameraModel, Frame, PoseEstimate, TrackingState
 
+# why a monocular estimator tracks nothing, said wherever a run ends without a tracked frame
+NOT_INITIALISED_HINT = (
+    "monocular initialisation needs two views with parallax between them: the camera must move "
+    "sideways a few percent of the scene's distance (a standing or only turning camera never initialises)"
+)
+
 
 class Estimator(ABC):
     """A pose estimator fed one frame at a time, in time order."""

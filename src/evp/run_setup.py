@@ -23,15 +23,44 @@ if TYPE_CHECKING:
 
 
 def camera_for(dataset: Dataset, settings: Settings) -> CameraModel:
-    """The settings' calibration file or profile when given, else the dataset's own calibration."""
+    """The settings' calibration file or profile when given (``--camera``), for the dataset's
+    image size, else the dataset's own calibration."""
     from evp.calib.profiles import configured_camera
 
-    camera = configured_camera(settings.camera)
+    camera = configured_camera(settings.camera, frame_size(dataset))
     if camera is not None:
         return camera
     if dataset.camera is None:
-        raise CalibrationError(dataset.root, "the dataset has no calibration; give camera.calibration_file or camera.profile in --config")
+        raise CalibrationError(
+            dataset.root, "the dataset has no calibration; give --camera FILE|PROFILE (evp camera list), or camera.calibration_file in --config"
+        )
     return dataset.camera
+
+
+def frame_size(dataset: Dataset) -> tuple[int, int] | None:
+    """(width, height) of the dataset's images: its calibration's, else its first frame's (None
+    without frames)."""
+    if dataset.camera is not None:
+        return dataset.camera.width, dataset.camera.height
+    first = next(iter(dataset.frames()), None)
+    return None if first is None else (first.image.shape[1], first.image.shape[0])
+
+
+def with_camera(settings: Settings, spec: str | None) -> Settings:
+    """The settings with ``--camera FILE|PROFILE`` as their calibration (a file that exists, else
+    a profile name), replacing whatever the settings named."""
+    if spec is None:
+        return settings
+    from pathlib import Path
+
+    from evp.calib.profiles import camera_from
+
+    if Path(spec).is_file():
+        given = {"calibration_file": Path(spec), "profile": None}
+    else:
+        camera_from(spec)  # a missing file or an unknown profile is said now, before the dataset is read
+        given = {"calibration_file": None, "profile": spec}
+    return settings.model_copy(update={"camera": settings.camera.model_copy(update=given)})
 
 
 def median_frame_period(dataset: Dataset) -> float:
@@ -62,6 +91,8 @@ def resolve_settings(settings: Settings, dataset: Dataset) -> Settings:
     update: dict = {"max_time_diff_s": max_time_diff_s}
     if estimator in METRIC_ESTIMATORS and "align" not in settings.eval.model_fields_set:
         update["align"] = "se3"
+    if not dataset.ground_truth_orientation and "rotation" not in settings.eval.model_fields_set:
+        update["rotation"] = False
     evaluation = settings.eval.model_copy(update=update)
     return settings.model_copy(update={"estimator": estimator, "eval": evaluation})
 

@@ -59,8 +59,19 @@ def test_bad_views_are_rejected_and_reported():
 
 def test_too_few_views_is_a_clear_error():
     views = _chessboard_views(NEXUS, 2, seed=4)
-    with pytest.raises(CalibrationError, match="found in 2 views"):
+    with pytest.raises(CalibrationError, match="found in 2 of 2 images"):
         calibrate_views(views, BoardSpec("chessboard", 9, 7, SQUARE))
+
+
+def test_board_given_as_inner_corners_gets_the_right_options_named():
+    """--cols 8 --rows 6 (the inner corners of a 9x7 board): the error names the source, no
+    placeholder, and the options that find the board."""
+    views = _chessboard_views(NEXUS, 2, seed=4)
+    with pytest.raises(CalibrationError) as caught:
+        calibrate_views(views, BoardSpec("chessboard", 8, 6, SQUARE), source="board/")
+    message = str(caught.value)
+    assert message.startswith("board: the board was found in 0 of 2 images")
+    assert "--cols 9 --rows 7" in message and "<" not in message
 
 
 def test_board_spec_validation():

@@ -89,8 +89,10 @@ def test_align_without_gps_is_a_clear_error(tmp_path, sample_path):
 
 def test_real_survey_photos_align_on_the_first_third(tmp_path):
     photos = shared("aerial_nadir_odm_toledo_fc350")
-    result = evp("align", photos, "--align-fraction", 0.333, "--json", tmp_path / "m.json")
+    # the live poses keep this test cheap; the refined track (the default) is bench/'s to measure
+    result = evp("align", photos, "--align-fraction", 0.333, "--json", tmp_path / "m.json", "--track", "live")
     assert result.returncode == 0, result.stderr
+    assert "visual track: the nadir estimator's live poses" in result.stdout
     metrics = json.loads((tmp_path / "m.json").read_text())
     assert metrics["n_evaluated"] >= 30
     # the survey spans 150 x 180 m; a working pipeline stays within tens of metres of GPS at worst
@@ -106,6 +108,7 @@ def _align_short_survey(photos, tmp_path):
     result = evp("align", photos, "--trajectory", tmp_path / "visual.tum", "--align-fraction", 0.5, "--json", tmp_path / "m.json", "--out", tmp_path / "out")
     assert result.returncode == 0, result.stderr
     assert "not validated: too few pairs to hold some out" in result.stdout
+    assert f"visual track: the trajectory file {tmp_path / 'visual.tum'}" in result.stdout
     assert "too few to hold 3 out for validation: fitted on all of them with the default settings" in result.stderr
     metrics = json.loads((tmp_path / "m.json").read_text())
     assert metrics["alignment"]["validation_rmse_m"] is None and metrics["alignment"]["model"] == "similarity"

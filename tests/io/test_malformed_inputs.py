@@ -112,10 +112,16 @@ def test_tum_known_kinect_intrinsics_are_used(tmp_path):
 
 
 def test_image_folder_without_calibration(tmp_path):
+    """It reads (evp info shows it, --camera can complete it); a run without a camera is refused."""
+    from evp.config import Settings
+    from evp.run_setup import camera_for
+
     root = builders.make_image_folder(tmp_path / "ds")
     (root / "calib.txt").unlink()
-    with pytest.raises(CalibrationError, match="no calibration file"):
-        open_dataset(root)
+    dataset = open_dataset(root)
+    assert dataset.camera is None and any("no calibration file" in note for note in dataset.notes)
+    with pytest.raises(CalibrationError, match="give --camera FILE"):
+        camera_for(dataset, Settings())
 
 
 def test_image_folder_calibration_for_another_resolution(tmp_path):
@@ -176,7 +182,7 @@ def test_unknown_paths(tmp_path):
         open_dataset(tmp_path / "nothing")
     (tmp_path / "notes").mkdir()
     (tmp_path / "notes" / "a.md").write_text("hello")
-    with pytest.raises(UnknownFormatError, match="not a dataset"):
+    with pytest.raises(UnknownFormatError, match="no images, video or recording here"):
         open_dataset(tmp_path / "notes")
     with pytest.raises(UnknownFormatError, match="unknown dataset format"):
         open_dataset(tmp_path / "notes", "lidar-scans")

@@ -134,7 +134,7 @@ def test_texture_from_image_files(tmp_path):
 
 
 def test_fisheye_dataset_reads_back_as_the_same_fisheye(tmp_path):
-    options = SimOptions(duration_s=0.2, fps=10.0, camera="global_752x480", lens="fisheye", fisheye_fov_deg=170.0)
+    options = SimOptions(duration_s=0.2, fps=10.0, camera="global_shutter_752x480", lens="fisheye", fisheye_fov_deg=170.0)
     result = generate("hover-drift", options, tmp_path, workers=1)
     sensor = yaml.safe_load((tmp_path / "mav0" / "cam0" / "sensor.yaml").read_text())
     assert (sensor["camera_model"], sensor["distortion_model"]) == ("pinhole", "equidistant")

@@ -69,8 +69,9 @@ def test_phone_page_streams_and_operator_sees_the_trajectory(tmp_path, station_d
         phone = context.new_page()
         phone.goto(operator.evaluate("window.evp.pairingUrl"))  # what scanning the QR code opens
         phone.wait_for_function("localStorage.getItem('evp.credential') !== null")
+        phone.wait_for_function("document.getElementById('link').textContent.startsWith('ready')")
+        phone.click("#start")  # the link opens now; the station's config (the operator's camera) comes with it
         phone.wait_for_function("window.evpPhone.config && window.evpPhone.config.camera.width === 240")
-        phone.click("#start")
         phone.wait_for_function("window.evpPhone.poses >= 40 && window.evpPhone.gps >= 1", timeout=120_000)
         operator.wait_for_function(
             "(() => { const s = window.evp.selected; return s && window.evp.trajectories[s] && window.evp.trajectories[s].points.filter(p => p.state === 'OK').length >= 10; })()",

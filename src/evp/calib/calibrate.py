@@ -108,15 +108,18 @@ def calibrate_views(
     reject_floor_px: float = 0.5,
     fix_k3: bool = True,
     min_views: int = 4,
+    source: str = "the images",
 ) -> CalibrationResult:
-    """Calibrate from named images; views whose error exceeds ``max(floor, factor x median)`` are dropped."""
+    """Calibrate from named images; views whose error exceeds ``max(floor, factor x median)`` are
+    dropped. ``source`` names where the images came from in errors."""
     views: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     rejected: dict[str, str] = {}
     size = None
+    first = None
     for name, image in images:
         this_size = (image.shape[1], image.shape[0])
         if size is None:
-            size = this_size
+            size, first = this_size, image
         elif this_size != size:
             rejected[name] = f"size {this_size[0]}x{this_size[1]} differs from {size[0]}x{size[1]}"
             continue
@@ -126,7 +129,7 @@ def calibrate_views(
         else:
             views[name] = detection
     if len(views) < min_views:
-        raise CalibrationError("<views>", f"the board was found in {len(views)} views; at least {min_views} are needed")
+        raise CalibrationError(source, too_few_views(len(views), len(views) + len(rejected), min_views, board, first))
     flags = cv2.CALIB_FIX_K3 if fix_k3 else 0
     while True:
         rms, K, dist, per_view = _calibrate(views, size, flags)
@@ -138,6 +141,25 @@ def calibrate_views(
         del views[worst]
     camera = CameraModel(size[0], size[1], K[0, 0], K[1, 1], K[0, 2], K[1, 2], *(list(dist) + [0.0] * 5)[:5], name="calibrated")
     return CalibrationResult(camera, rms, per_view, rejected)
+
+
+def too_few_views(found: int, images: int, min_views: int, board: BoardSpec, first: np.ndarray | None) -> str:
+    """Why a calibration cannot run, with the board sizes to check: ``--cols/--rows`` count
+    squares, and the board given as its inner corners (one fewer each way, what OpenCV's own
+    samples ask for) is the common mistake, so when no view shows the board the first image is
+    tried with one more square each way and a hit is named."""
+    message = f"the board was found in {found} of {images} images; at least {min_views} are needed"
+    if found or first is None:
+        return message + "; take more views with the whole board in sight"
+    cols, rows = board.inner_corners
+    hint = (
+        f"; --cols {board.cols} --rows {board.rows} count squares (a {board.cols}x{board.rows} board has {cols}x{rows} inner corners): "
+        "check them against the board, and that the whole board is in sight"
+    )
+    larger = BoardSpec(board.kind, board.cols + 1, board.rows + 1, board.square_m, board.marker_m if board.kind == "charuco" else 0.0, board.dictionary)
+    if detect_board(first, larger) is not None:
+        hint = f"; the first image shows a board with --cols {larger.cols} --rows {larger.rows} (these count squares, not inner corners)"
+    return message + hint
 
 
 def images_from_path(path: Path, every: int = 1) -> Iterator[tuple[str, np.ndarray]]:

@@ -14,7 +14,9 @@ or the equidistant Kannala-Brandt fisheye):
   ``Camera.type`` ``PinHole``, ``KannalaBrandt8`` or ``Rectified`` (ORB-SLAM2: no type, pinhole)
 * Kalibr camchain (``cam0: {intrinsics, distortion_coeffs, resolution}``) and EuRoC
   ``sensor.yaml``: ``pinhole`` with ``radtan`` (``radial-tangential``), ``equidistant`` or ``none``
-* one line of numbers ``fx fy cx cy [k1 k2 p1 p2 [k3]]`` (RPG / DAVIS style ``calib.txt``)
+* one line of numbers ``fx fy cx cy [k1 k2 p1 p2 [k3]]`` (RPG / DAVIS style ``calib.txt``) and
+  KITTI's ``calib.txt`` (``P0: ...`` projection lines, camera 0 read): both without the image size,
+  which the caller gives (a dataset's images, or ``evp camera --width --height``)
 
 A lens model EVP cannot use (OpenCV's thin-prism and tilted-sensor terms, Kalibr's omni, double
 sphere, extended unified and FOV models, an unknown ORB-SLAM camera type) is refused by name with
@@ -23,6 +25,7 @@ a :class:`~evp.errors.CalibrationError`, never read as another model.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -172,6 +175,37 @@ def _from_kalibr(path: Path, cam: dict, name: str) -> CameraModel:
     return _camera(path, width, height, fx, fy, cx, cy, coefficients, lens, name)
 
 
+PROJECTION_LINE = re.compile(r"^\s*P\d\s*:")
+
+
+def is_kitti_calib(path: Path) -> bool:
+    """Whether a ``calib.txt`` holds KITTI projection lines (``P0: ...``) rather than plain numbers."""
+    try:
+        lines = [line for line in path.read_text().splitlines() if line.strip()]
+    except (OSError, UnicodeDecodeError):
+        return False
+    return bool(lines) and PROJECTION_LINE.match(lines[0]) is not None
+
+
+def read_kitti_projection(path: Path, camera: int = 0) -> np.ndarray:
+    """The 3x4 ``P<camera>`` matrix of a KITTI ``calib.txt`` (rectified, in camera 0's frame)."""
+    if not path.is_file():
+        raise CalibrationError(path, "calib.txt not found")
+    key = f"P{camera}:"
+    for number, line in enumerate(path.read_text().splitlines(), start=1):
+        if line.startswith(key):
+            try:
+                return np.array([float(v) for v in line.split()[1:]]).reshape(3, 4)
+            except ValueError as exc:
+                raise CalibrationError(path, f"P{camera} must hold 12 numbers: {exc}", line=number) from exc
+    raise CalibrationError(path, f"no '{key}' line")
+
+
+def kitti_camera(P: np.ndarray, width: int, height: int, camera: int = 0) -> CameraModel:
+    """The pinhole of a rectified KITTI camera from its projection ``P = K [I | t]`` (no distortion)."""
+    return CameraModel(width, height, float(P[0, 0]), float(P[1, 1]), float(P[0, 2]), float(P[1, 2]), name=f"kitti_cam{camera}")
+
+
 def _from_numbers(path: Path, text: str, width: int | None, height: int | None) -> CameraModel:
     try:
         values = [float(v) for v in text.split()]
@@ -179,9 +213,15 @@ def _from_numbers(path: Path, text: str, width: int | None, height: int | None) 
         raise CalibrationError(path, f"expected numbers 'fx fy cx cy [k1 k2 p1 p2 [k3]]': {exc}", line=1) from exc
     if len(values) not in (4, 8, 9):
         raise CalibrationError(path, f"expected 4, 8 or 9 numbers (fx fy cx cy k1 k2 p1 p2 k3), found {len(values)}", line=1)
-    if width is None or height is None:
-        raise CalibrationError(path, "this calibration has no image size; it is taken from the images")
+    _check_size(path, width, height)
     return _camera(path, width, height, *values[:4], values[4:], LensModel.RADTAN, path.stem)
+
+
+def _check_size(path: Path, width: int | None, height: int | None) -> None:
+    if width is None or height is None:
+        raise CalibrationError(
+            path, "this calibration does not say the image size; give it (evp camera FILE --width W --height H) or use it with a dataset's images"
+        )
 
 
 def read_camera(path: str | Path, width: int | None = None, height: int | None = None, camera: str = "cam0") -> CameraModel:
@@ -197,6 +237,9 @@ def read_camera(path: str | Path, width: int | None = None, height: int | None =
         lines = [line for line in path.read_text().splitlines() if line.strip() and not line.lstrip().startswith("#")]
         if not lines:
             raise CalibrationError(path, "empty calibration file")
+        if PROJECTION_LINE.match(lines[0]):
+            _check_size(path, width, height)
+            return kitti_camera(read_kitti_projection(path, 0), width, height)
         return _from_numbers(path, lines[0], width, height)
     data = load_yaml_mapping(path)
     try:
@@ -223,10 +266,10 @@ def distortion_model_name(camera: CameraModel) -> str:
     return "rational_polynomial" if len(camera.distortion) == 8 else "plumb_bob"
 
 
-def write_opencv_yaml(path: str | Path, camera: CameraModel, extra: dict[str, float | int] | None = None, text: dict[str, str] | None = None) -> None:
+def opencv_yaml_text(camera: CameraModel, extra: dict[str, float | int] | None = None, text: dict[str, str] | None = None) -> str:
     """OpenCV FileStorage YAML, readable by OpenCV, ORB-SLAM-style tools and :func:`read_camera`
     (which reads the lens model back from ``distortion_model``)."""
-    storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    storage = cv2.FileStorage("camera.yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
     storage.write("camera_name", camera.name or "camera")
     storage.write("image_width", camera.width)
     storage.write("image_height", camera.height)
@@ -237,4 +280,44 @@ def write_opencv_yaml(path: str | Path, camera: CameraModel, extra: dict[str, fl
         storage.write(key, value if isinstance(value, int) else float(value))
     for key, value in (text or {}).items():
         storage.write(key, str(value))
-    storage.release()
+    return storage.releaseAndGetString()
+
+
+def write_opencv_yaml(path: str | Path, camera: CameraModel, extra: dict[str, float | int] | None = None, text: dict[str, str] | None = None) -> None:
+    """:func:`opencv_yaml_text` written to ``path``."""
+    Path(path).write_text(opencv_yaml_text(camera, extra, text))
+
+
+def ros_yaml_text(camera: CameraModel) -> str:
+    """ROS ``camera_info`` YAML (as camera_calibration_parsers writes it): rectification identity,
+    projection ``[K | 0]``."""
+
+    def matrix(rows: int, cols: int, values) -> dict:
+        return {"rows": rows, "cols": cols, "data": [float(v) for v in np.ravel(values)]}
+
+    data = {
+        "image_width": camera.width,
+        "image_height": camera.height,
+        "camera_name": camera.name or "camera",
+        "camera_matrix": matrix(3, 3, camera.K),
+        "distortion_model": distortion_model_name(camera),
+        "distortion_coefficients": matrix(1, len(camera.distortion), camera.distortion),
+        "rectification_matrix": matrix(3, 3, np.eye(3)),
+        "projection_matrix": matrix(3, 4, np.hstack([camera.K, np.zeros((3, 1))])),
+    }
+    return yaml.safe_dump(data, sort_keys=False, default_flow_style=None)
+
+
+def numbers_text(camera: CameraModel) -> str:
+    """The one-line ``calib.txt`` (``fx fy cx cy k1 k2 p1 p2 k3``), which holds only a pinhole with
+    up to five radial-tangential coefficients and no image size."""
+    if camera.lens is not LensModel.RADTAN or len(camera.distortion) > 5:
+        raise CalibrationError(
+            camera.name or "camera", f"calib.txt holds fx fy cx cy k1 k2 p1 p2 k3 only; this lens ({distortion_model_name(camera)}) needs --to yaml or --to ros"
+        )
+    values = [camera.fx, camera.fy, camera.cx, camera.cy, *camera.distortion]
+    return " ".join(repr(float(v)) for v in values) + "\n"
+
+
+# what evp camera --to writes: the formats read_camera reads back
+CAMERA_FILE_WRITERS = {"yaml": opencv_yaml_text, "ros": ros_yaml_text, "txt": numbers_text}

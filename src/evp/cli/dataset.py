@@ -8,6 +8,7 @@ from pathlib import Path
 import typer
 
 from evp.errors import DatasetError, InitialisationError, UsageError
+from evp.io.output_paths import writable_folder
 
 app = typer.Typer()
 ALIGNED = {"none": "unaligned", "se3": "SE3-aligned", "sim3": "Sim3-aligned"}
@@ -18,12 +19,21 @@ def info(
     path: Path = typer.Argument(..., help="Dataset folder or file (format auto-detected)."),
     fmt: str | None = typer.Option(None, "--format", help="Reader name, to skip auto-detection."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of text."),
+    camera: str | None = typer.Option(
+        None, "--camera", help="Calibration file (OpenCV, ROS, ORB-SLAM, Kalibr, EuRoC, calib.txt) or profile name (evp camera list), instead of the dataset's."
+    ),
 ) -> None:
     """Print what a dataset holds: format, frames, rate, duration, sensors, calibration, ground truth."""
+    from evp.calib.profiles import camera_from
     from evp.io.registry import open_dataset
     from evp.io.summary import describe, summarise
+    from evp.run_setup import frame_size
 
-    summary = summarise(open_dataset(path, fmt))
+    dataset = open_dataset(path, fmt)
+    if camera is not None:
+        dataset.camera = camera_from(camera, frame_size(dataset))
+        dataset.notes.append(f"calibration: --camera {camera}")
+    summary = summarise(dataset)
     typer.echo(json.dumps(summary, indent=2) if as_json else describe(summary))
 
 
@@ -45,18 +55,21 @@ def run(
         "--map",
         help="Start SLAM from a map an earlier run saved (its map.npz; sets slam.map): it relocalises there, and a georeferenced map georeferences this run at once.",
     ),
+    camera: str | None = typer.Option(
+        None, "--camera", help="Calibration file (OpenCV, ROS, ORB-SLAM, Kalibr, EuRoC, calib.txt) or profile name (evp camera list), instead of the dataset's."
+    ),
 ) -> None:
     """Estimate the camera trajectory of a dataset and evaluate it when ground truth exists."""
-    from rich.console import Console
-    from rich.progress import Progress
-
+    from evp.cli.progress import progress_of, status_of
     from evp.config import load_settings
+    from evp.estimator import NOT_INITIALISED_HINT
     from evp.io.registry import open_dataset
     from evp.io.run_outputs import write_outputs
     from evp.pipeline import run_dataset
-    from evp.run_setup import camera_for, make_estimator, navigation_off, navigation_on_refined, navigation_stage, resolve_settings
+    from evp.run_setup import camera_for, make_estimator, navigation_off, navigation_on_refined, navigation_stage, resolve_settings, with_camera
 
-    settings = load_settings(config)
+    writable_folder(out)
+    settings = with_camera(load_settings(config), camera)
     if estimator_name is not None:
         settings = with_estimator(settings, estimator_name)
     if saved_map is not None:
@@ -72,15 +85,14 @@ def run(
     navigation = navigation_stage(dataset, settings, estimator)
     if navigation is None and dataset.imu:
         typer.echo(f"warning: the IMU is not fused: {navigation_off(dataset, settings)}", err=True)
-    with Progress(transient=True) as progress:
-        task = progress.add_task(f"{dataset.name}", total=dataset.num_frames)
+    with progress_of(dataset.name, dataset.num_frames) as progress:
         # a real-time replay has no spare time to also run OpenCV's ORB on each frame
         reference_orb = None if realtime else settings.orb.n_features
         stages = [navigation] if navigation is not None else []
-        result = run_dataset(dataset, estimator, lambda n: progress.advance(task, n), reference_orb, speed if realtime else None, stages=stages)
+        result = run_dataset(dataset, estimator, progress.advance, reference_orb, speed if realtime else None, stages=stages)
     # a survey adjustment or a global bundle adjustment: seconds after the last frame (the result
     # keeps it for write_outputs)
-    with Console(stderr=True).status(f"{dataset.name}: refining the trajectory (end of run)"):
+    with status_of(f"{dataset.name}: refining the trajectory (end of run)"):
         result.final_trajectory()
         refined_navigation = None
         if navigation is not None and settings.navigation.refine_offline and result.refined is not None and len(result.refined) >= 2:
@@ -91,7 +103,7 @@ def run(
         frames = f"{dataset.num_frames} frame" + ("s" if dataset.num_frames != 1 else "")
         raise InitialisationError(
             f"{dataset.name}: too short or too still to initialise: no frame tracked in {frames} ({dataset.frame_times[-1] - dataset.frame_times[0]:.2f} s); "
-            f"monocular initialisation needs two views with parallax between them (outputs in {out})"
+            f"{NOT_INITIALISED_HINT} (outputs in {out})"
         )
     typer.echo(
         f"{dataset.name}: tracked {metrics['tracked_frames']}/{metrics['frames']} frames "

@@ -8,6 +8,7 @@ from pathlib import Path
 import typer
 
 from evp.errors import DataError, EvaluationError, UsageError
+from evp.io.output_paths import writable_file, writable_folder
 
 app = typer.Typer()
 
@@ -42,6 +43,17 @@ def evaluate_files(ref_path: Path, est_path: Path, settings, ref_times: Path | N
     return evaluate(ref_stamped, est_stamped, settings)
 
 
+def says_position_only(path: Path) -> bool:
+    """Whether a trajectory file's leading comment says its orientation is a placeholder ('position
+    only', as the shared datasets' GPS references state)."""
+    try:
+        with path.open() as handle:
+            head = [line for _, line in zip(range(5), handle) if line.startswith("#")]
+    except (OSError, UnicodeDecodeError):
+        return False
+    return any("position only" in line.lower().replace("-", " ").replace("_", " ") for line in head)
+
+
 @app.command("eval")
 def evaluate_command(
     ref: Path = typer.Argument(..., help="Reference trajectory (TUM, KITTI or EuRoC CSV)."),
@@ -58,12 +70,20 @@ def evaluate_command(
     z_tol: float = typer.Option(2.0, "--z-tol", help="Tolerance (m) of the z subset."),
     json_out: Path | None = typer.Option(None, "--json", help="Write all statistics as JSON."),
     report: Path | None = typer.Option(None, "--report", help="Write plots and a Markdown summary to this folder."),
+    position_only: bool | None = typer.Option(
+        None,
+        "--position-only/--with-orientation",
+        help="The reference measures positions only (GPS): no rotation error or RPE (default: a reference whose header says 'position only').",
+    ),
+    plane: str = typer.Option("auto", "--plane", help="Plane of the top view and the in-plane error: auto (the one the reference moves in), xy, xz or yz."),
 ) -> None:
     """Compare an estimated trajectory with a reference: APE, RPE, XY RMSE, quartiles (evo's conventions)."""
     from pydantic import ValidationError
 
     from evp.config import EvalSettings, validation_message
 
+    writable_file(json_out, "--json", "metrics.json")
+    writable_folder(report, "--report")
     try:
         settings = EvalSettings(
             align=align,
@@ -74,15 +94,24 @@ def evaluate_command(
             rpe_unit=rpe_unit,
             z_target_m=z_target,
             z_tolerance_m=z_tol,
+            rotation=not (says_position_only(ref) if position_only is None else position_only),
+            plane=plane,
         )
     except ValidationError as exc:
-        raise UsageError(f"bad option: {validation_message(exc)} (align: none/se3/sim3, rpe unit: frames/m)") from None
+        raise UsageError(f"bad option: {validation_message(exc)} (align: none/se3/sim3, rpe unit: frames/m, plane: auto/xy/xz/yz)") from None
     result = evaluate_files(ref, est, settings, ref_times, est_times)
     summary = result.summary()
     stats = summary["ape_translation_m"]
     typer.echo(f"matched poses {summary['matched_poses']}, alignment {align}, scale {result.alignment.scale:.6g}")
     typer.echo("APE translation (m): " + "  ".join(f"{k} {stats[k]:.6g}" for k in ("rmse", "mean", "median", "std", "min", "max", "q1", "q3", "iqr")))
-    typer.echo(f"XY RMSE (m): {summary['xy_rmse']:.6g}   APE rotation RMSE (deg): {summary['ape_rotation_deg']['rmse']:.6g}")
+    line = f"XY RMSE (m): {summary['xy_rmse']:.6g}"
+    if summary["plane"] != "xy":
+        line += f"   in-plane ({summary['plane']}) RMSE (m): {summary['plane_rmse']:.6g}"
+    if summary["reference_orientation"]:
+        line += f"   APE rotation RMSE (deg): {summary['ape_rotation_deg']['rmse']:.6g}"
+    else:
+        line += "   (position-only reference: no rotation error or RPE)"
+    typer.echo(line)
     if "rpe" in summary:
         typer.echo(
             f"RPE ({rpe_delta:g} {rpe_unit}): translation RMSE {summary['rpe']['translation_m']['rmse']:.6g} m, rotation RMSE {summary['rpe']['rotation_deg']['rmse']:.6g} deg"
@@ -110,6 +139,7 @@ def convert(
     """Convert a trajectory between formats (full float precision)."""
     from evp.io.trajectory import TrajectoryFormat, read_timestamps, read_trajectory, write_trajectory
 
+    writable_file(dst, "DST", "poses.tum")
     trajectory = read_trajectory(src)
     if times is not None:
         stamps = read_timestamps(times)

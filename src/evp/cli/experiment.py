@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from evp.errors import UsageError
+from evp.io.output_paths import writable_folder
 
 app = typer.Typer()
 
@@ -27,5 +28,6 @@ def experiment(
     chosen = find(name)
     if out is None:
         raise UsageError("give --out DIR for the report")
+    writable_folder(out)
     report = chosen.run(out, lambda text: typer.echo(f"{name}: {text}", err=True))
     typer.echo(f"{name}: report in {report}")

@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from evp.errors import UsageError
+from evp.io.output_paths import writable_folder
 
 app = typer.Typer()
 SCENES = ("marker-field",)
@@ -36,6 +37,7 @@ def fly(
     from evp.sim.mission import MissionRun, MissionSpec
     from evp.sim.mission import fly as fly_mission
 
+    writable_folder(out)
     if scene not in SCENES:
         raise UsageError(f"unknown scene {scene!r}; choose one of {', '.join(SCENES)}")
     try:

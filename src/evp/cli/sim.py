@@ -12,6 +12,7 @@ from pathlib import Path
 import typer
 
 from evp.errors import ConfigError, UsageError
+from evp.io.output_paths import writable_folder
 
 app = typer.Typer()
 
@@ -40,7 +41,7 @@ def sim_options(config: Path | None, typed: dict, typed_gps: dict):
     try:
         return SimOptions.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(f"simulation option {validation_message(exc)}") from exc
+        raise ConfigError(f"simulation option {validation_message(exc, SimOptions)}") from exc
 
 
 @app.command()
@@ -51,7 +52,9 @@ def sim(
     duration: float | None = typer.Option(None, "--duration", help="Seconds (default: the scenario's)."),
     seed: int | None = typer.Option(None, "--seed", help="Random seed (noise, textures, paths)."),
     fps: float | None = typer.Option(None, "--fps", help="Camera frame rate."),
-    camera: str | None = typer.Option(None, "--camera", help="nexus5x_640x380, global_752x480, phone_1280x720, car_1241x376 or car_640x194."),
+    camera: str | None = typer.Option(
+        None, "--camera", help="Camera profile (evp camera list): nexus5x_640x380, global_shutter_752x480, phone_1280x720, car_1241x376 or car_640x194."
+    ),
     lens: str | None = typer.Option(None, "--lens", help="pinhole (the camera preset's lens) or fisheye (equidistant, at the preset's resolution)."),
     fisheye_fov: float | None = typer.Option(None, "--fisheye-fov", help="Fisheye diagonal field of view, 120-180 degrees (corner to corner; 150 by default)."),
     texture: str | None = typer.Option(None, "--texture", help="rich, low, floor, wall, or image file(s) separated by commas."),
@@ -81,8 +84,8 @@ def sim(
         return
     if scenario is None or out is None:
         raise UsageError("give a scenario and --out DIR (or --list)")
-    from rich.progress import Progress
-
+    writable_folder(out)
+    from evp.cli.progress import progress_of
     from evp.sim.generate import generate
 
     typed = dict(duration_s=duration, seed=seed, fps=fps, camera=camera, texture=texture, altitude_m=altitude, speed_m_s=speed, pattern=pattern)
@@ -91,9 +94,8 @@ def sim(
     typed_gps = dict(clock_offset_s=gps_offset, spoof_start_s=spoof_start, spoof_mode=spoof_mode, spoof_rate_m_s=spoof_rate, spoof_jump_m=spoof_jump)
     typed_gps["outages"] = [_outage(o) for o in outage] or None
     options = sim_options(config, typed, typed_gps)
-    with Progress(transient=True) as progress:
-        task = progress.add_task(f"{scenario}", total=None)
-        result = generate(scenario, options, out, workers, lambda n: progress.advance(task, n), lambda total: progress.update(task, total=total))
+    with progress_of(scenario, None) as progress:
+        result = generate(scenario, options, out, workers, progress.advance, lambda total: setattr(progress, "total", total))
     typer.echo(
         f"{scenario}: {result.frames} frames ({len(result.dropped)} dropped), {result.scenario.motion.duration:.1f} s, sensors {', '.join(result.scenario.sensors)} -> {out}"
     )

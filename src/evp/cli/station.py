@@ -9,6 +9,7 @@ from pathlib import Path
 import typer
 
 from evp.errors import DataError, ExitCode, UsageError
+from evp.io.output_paths import writable_folder
 
 app = typer.Typer()
 
@@ -128,13 +129,17 @@ def stream(
     """Stream to a base station as a mobile station would; prints each pose, then a JSON summary.
     The station's certificate is verified (--cafile, --fingerprint, or a public one) unless --insecure;
     exits with 4 (link) when the station refused frames."""
+    from evp.estimator import NOT_INITIALISED_HINT
     from evp.mobile.pairing import device_credential
 
+    writable_folder(out)
     credential = device_credential(url, pair, credential_file, cafile, fingerprint, insecure)
     summary = run_stream(
         source, url, realtime, encoding, jpeg_quality, camera, max_frames, credential, resume, cafile, fingerprint, insecure, out, quiet, typer.echo
     )
     typer.echo(json.dumps(summary))
+    if summary["poses_received"] and not summary["poses_tracked"]:
+        typer.echo(f"warning: the station tracked none of the {summary['poses_received']} frames it answered: {NOT_INITIALISED_HINT}", err=True)
     if summary["frames_refused"]:
         typer.echo(f"the station refused {summary['frames_refused']} frame(s): {'; '.join(summary['first_errors'][:2])}", err=True)
         raise typer.Exit(int(ExitCode.LINK))
@@ -152,8 +157,7 @@ def _session_reference(session: str, data: Path) -> tuple[str, Path]:
 
 def run_replay(session: str, data: Path, db: str | None, out: Path | None, all_frames: bool) -> dict:
     """Re-run a recorded session; its comparison with the live poses (written to ``out`` when given)."""
-    from rich.progress import Progress
-
+    from evp.cli.progress import progress_of
     from evp.station.replay import compare_with_live, write_replay
     from evp.station.replay import replay as replay_session
     from evp.station.store import SessionStore
@@ -163,9 +167,8 @@ def run_replay(session: str, data: Path, db: str | None, out: Path | None, all_f
     try:
         row = store.session(session_id)
         total = row["frames_received"] if row else None
-        with Progress(transient=True) as progress:
-            task = progress.add_task(f"replay {session_id}", total=total or None)
-            poses = replay_session(store, session_id, all_frames, lambda n: progress.advance(task, n))
+        with progress_of(f"replay {session_id}", total or None) as progress:
+            poses = replay_session(store, session_id, all_frames, progress.advance)
         return write_replay(out, store, session_id, poses) if out else compare_with_live(store, session_id, poses)
     finally:
         store.close()
@@ -180,4 +183,5 @@ def replay(
     all_frames: bool = typer.Option(False, "--all-frames", help="Also estimate the frames the live station dropped as stale."),
 ) -> None:
     """Re-run a recorded session offline and compare with the poses sent live."""
+    writable_folder(out)
     typer.echo(json.dumps(run_replay(session, data, db, out, all_frames), indent=2))

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from evp.io.output_paths import writable_file
+
 app = typer.Typer(help="Bag-of-words vocabularies for place recognition: build one, show one.", no_args_is_help=True)
 
 
@@ -29,6 +31,7 @@ def vocabulary_build(
     from evp.io.vocabulary_files import save_vocabulary
     from evp.vocabulary_training import build_vocabulary, dataset_descriptors, rendered_descriptors
 
+    writable_file(out, example="voc.npz")
     orb = load_settings(config).orb
     with Progress(transient=True) as progress:
         images = progress.add_task("extracting ORB features", total=None)

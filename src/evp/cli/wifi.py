@@ -7,6 +7,8 @@ from pathlib import Path
 
 import typer
 
+from evp.io.output_paths import writable_file
+
 app = typer.Typer(help="WiFi RSS fingerprinting: build a radio map, locate scans, compare methods.", no_args_is_help=True)
 METHOD_HELP = (
     "knn3 (plain 3-NN), wknn_paper (seed 001: weighted 3-NN on averaged fingerprints) or wknn_cv (weighted k-NN, floor detection, k by cross-validation)."
@@ -30,6 +32,7 @@ def wifi_build(
     from evp.io.wifi_uji import SURVEY_SET, database_folder, read_set, save_radio_map
     from evp.wifi.fingerprints import reference_points
 
+    writable_file(out, example="radio_map.npz")
     settings_tolerance = _settings(None).wifi.place_tolerance_m
     survey = read_set(database_folder(folder), SURVEY_SET)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -51,6 +54,7 @@ def wifi_locate(
     from evp.wifi.knn import build_radio_map, locate
     from evp.wifi.methods import TUNED, method_named
 
+    writable_file(json_out, "--json", "positions.json")
     settings = _settings(config)
     survey = load_radio_map(radio_map)
     if method == TUNED.name:
@@ -86,6 +90,7 @@ def wifi_eval(
     from evp.wifi.evaluation import evaluate_methods
     from evp.wifi.methods import compared_methods
 
+    writable_file(json_out, "--json", "scores.json")
     settings = _settings(config)
     survey, tests = read_database(folder)
     progress, advance = _tuning_progress(settings, "choosing k for wknn_cv (leave-one-place-out)")

@@ -19,6 +19,7 @@ from evp.eval.metrics import (
     ape_translation_xy,
     relative_pose_errors,
 )
+from evp.eval.plane import Plane, motion_plane
 from evp.eval.statistics import error_statistics
 from evp.geometry.alignment import Similarity
 from evp.types import Trajectory
@@ -32,8 +33,10 @@ class EvaluationResult:
     alignment: Similarity
     ape_translation: np.ndarray
     ape_translation_xy: np.ndarray
-    ape_rotation_deg: np.ndarray
+    ape_rotation_deg: np.ndarray | None  # None: the reference is position-only (options.rotation false)
     rpe: RelativeErrors | None
+    plane: Plane
+    ape_translation_plane: np.ndarray  # in the plane the reference moves in (or the one options.plane names)
     subset_mask: np.ndarray | None = field(default=None)
 
     def summary(self) -> dict:
@@ -43,7 +46,11 @@ class EvaluationResult:
         out["xy_rmse"] = float(np.sqrt(np.mean(self.ape_translation_xy**2)))
         out["ape_translation_m"] = error_statistics(self.ape_translation)
         out["ape_translation_xy_m"] = error_statistics(self.ape_translation_xy)
-        out["ape_rotation_deg"] = error_statistics(self.ape_rotation_deg)
+        out["plane"] = self.plane.name
+        out["plane_rmse"] = float(np.sqrt(np.mean(self.ape_translation_plane**2)))
+        out["reference_orientation"] = self.ape_rotation_deg is not None
+        if self.ape_rotation_deg is not None:
+            out["ape_rotation_deg"] = error_statistics(self.ape_rotation_deg)
         if self.rpe is not None:
             out["rpe"] = {
                 "delta": self.options.rpe_delta,
@@ -78,12 +85,15 @@ class EvaluationResult:
             "rpe_unit": self.options.rpe_unit,
             "z_target_m": self.options.z_target_m,
             "z_tolerance_m": self.options.z_tolerance_m,
+            "rotation": self.options.rotation,
+            "plane": self.options.plane,
         }
         return out
 
 
 def evaluate(ref: Trajectory, est: Trajectory, options: EvalSettings) -> EvaluationResult:
-    """Associate, align, and compute APE (translation, XY, rotation), RPE and the z subset.
+    """Associate, align, and compute APE (translation, XY, in the path's plane, rotation), RPE and
+    the z subset; a position-only reference (``options.rotation`` false) gets no rotation APE or RPE.
 
     ``options.max_time_diff_s`` must be a number: a None (the frame-rate default) is resolved
     where the dataset is known (``evp.run_setup.resolve_settings``)."""
@@ -91,10 +101,13 @@ def evaluate(ref: Trajectory, est: Trajectory, options: EvalSettings) -> Evaluat
         raise ValueError("max_time_diff_s is unresolved: give the number of seconds (resolve_settings does for a dataset)")
     ref_matched, est_matched = associate(ref, est, options.max_time_diff_s, options.time_offset_s)
     aligned, transform = align_trajectory(ref_matched, est_matched, Alignment(options.align), options.n_align)
-    try:
-        rpe = relative_pose_errors(ref_matched, aligned, options.rpe_delta, DeltaUnit(options.rpe_unit), options.rpe_all_pairs)
-    except EvaluationError:
-        rpe = None
+    rpe = None
+    if options.rotation:  # relative poses are taken in each reference pose's frame: meaningless without its orientation
+        try:
+            rpe = relative_pose_errors(ref_matched, aligned, options.rpe_delta, DeltaUnit(options.rpe_unit), options.rpe_all_pairs)
+        except EvaluationError:
+            rpe = None
+    plane = motion_plane(ref_matched.positions, options.plane)
     mask = None
     if options.z_target_m is not None:
         mask = np.abs(ref_matched.positions[:, 2] - options.z_target_m) < options.z_tolerance_m
@@ -105,7 +118,9 @@ def evaluate(ref: Trajectory, est: Trajectory, options: EvalSettings) -> Evaluat
         alignment=transform,
         ape_translation=ape_translation(ref_matched, aligned),
         ape_translation_xy=ape_translation_xy(ref_matched, aligned),
-        ape_rotation_deg=ape_rotation_deg(ref_matched, aligned),
+        ape_rotation_deg=ape_rotation_deg(ref_matched, aligned) if options.rotation else None,
         rpe=rpe,
+        plane=plane,
+        ape_translation_plane=np.linalg.norm(plane.project(aligned.positions - ref_matched.positions), axis=1),
         subset_mask=mask,
     )

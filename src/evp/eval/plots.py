@@ -1,4 +1,5 @@
-"""evo-style evaluation figures (PNG): top view, error over time, histogram, box plot."""
+"""evo-style evaluation figures (PNG): top view (in the plane the path lies in), error over time,
+histogram, box plot; metres on every axis, ticks at round numbers without offsets."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.ticker import MaxNLocator, ScalarFormatter  # noqa: E402
 
 from evp.eval.evaluate import EvaluationResult  # noqa: E402
 
@@ -20,19 +22,43 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
+# coordinates beyond this (UTM eastings, ECEF) are drawn relative to the first reference pose, so
+# the ticks read as metres travelled instead of a shared offset printed beside the axis
+LARGE_COORDINATE_M = 1e4
+
+
+def readable_axes(ax, max_ticks: int = 7) -> None:
+    """Ticks at round numbers, no scientific offset (matplotlib's default for big or tiny ranges,
+    which a reader has to add back in their head)."""
+    for axis in (ax.xaxis, ax.yaxis):
+        axis.set_major_locator(MaxNLocator(max_ticks, steps=[1, 2, 2.5, 5, 10]))
+        axis.set_major_formatter(ScalarFormatter(useOffset=False))
+
+
 def plot_top_view(result: EvaluationResult, path: Path) -> Path:
-    """Reference dashed grey, estimate coloured by its APE translation error."""
+    """Reference dashed grey, estimate coloured by its APE translation error, in the plane the
+    reference moves in (evp.eval.plane), in metres on equal axes."""
+    plane = result.plane
+    ref = plane.project(result.ref.positions)
+    est = plane.project(result.est.positions)
+    labels = plane.labels
+    if np.abs(ref).max(initial=0.0) > LARGE_COORDINATE_M:
+        origin = ref[0].copy()
+        ref, est = ref - origin, est - origin
+        labels = tuple(label.replace(" (m)", " from the first pose (m)") for label in labels)
     fig, ax = plt.subplots(figsize=(6.4, 5.6))
-    ax.plot(result.ref.positions[:, 0], result.ref.positions[:, 1], "--", color="0.45", label="reference")
-    points = ax.scatter(result.est.positions[:, 0], result.est.positions[:, 1], c=result.ape_translation, s=6, cmap="jet", label="estimate")
-    ax.plot(result.est.positions[:, 0], result.est.positions[:, 1], "-", color="0.2", lw=0.5, alpha=0.5)
+    ax.plot(ref[:, 0], ref[:, 1], "--", color="0.45", label="reference")
+    points = ax.scatter(est[:, 0], est[:, 1], c=result.ape_translation, s=6, cmap="viridis", label="estimate")
+    ax.plot(est[:, 0], est[:, 1], "-", color="0.2", lw=0.5, alpha=0.5)
     fig.colorbar(points, ax=ax, label="APE translation (m)")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
+    ax.set_xlabel(labels[0])
+    ax.set_ylabel(labels[1])
     ax.set_aspect("equal", adjustable="datalim")
-    ax.set_title(f"Top view, {result.options.align} alignment")
+    view = {"xy": "Top view (x-y)", "principal": "Plane of the motion"}.get(plane.name, f"{plane.name[0]}-{plane.name[1]} plane")
+    ax.set_title(f"{view}, {result.options.align} alignment")
     ax.legend(loc="best")
     ax.grid(alpha=0.3)
+    readable_axes(ax)
     return _save(fig, path)
 
 
@@ -49,6 +75,7 @@ def plot_error_over_time(result: EvaluationResult, path: Path) -> Path:
     ax.set_ylabel("APE translation (m)")
     ax.legend(loc="upper left", fontsize=8)
     ax.grid(alpha=0.3)
+    readable_axes(ax)
     return _save(fig, path)
 
 
@@ -58,12 +85,13 @@ def plot_histogram(result: EvaluationResult, path: Path) -> Path:
     ax.set_xlabel("APE translation (m)")
     ax.set_ylabel("poses")
     ax.grid(alpha=0.3)
+    readable_axes(ax)
     return _save(fig, path)
 
 
 def plot_boxplot(result: EvaluationResult, path: Path) -> Path:
-    data = [result.ape_translation, result.ape_translation_xy]
-    labels = ["3-D", "XY"]
+    data = [result.ape_translation, result.ape_translation_plane]
+    labels = ["3-D", result.plane.name.upper() if result.plane.name != "principal" else "in plane"]
     if result.subset_mask is not None and result.subset_mask.any():
         data.append(result.ape_translation[result.subset_mask])
         labels.append(f"|z-{result.options.z_target_m:g}|<{result.options.z_tolerance_m:g}")

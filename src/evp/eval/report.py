@@ -23,14 +23,15 @@ def markdown_summary(result: EvaluationResult, ref_name: str, est_name: str) -> 
         *(["- alignment is degenerate (collinear positions): the rotation about that line is not observable"] if result.alignment.degenerate else []),
         f"- reference path length: {summary['reference_path_length_m']:.3f} m",
         f"- XY RMSE: {summary['xy_rmse']:.6g} m",
+        *([f"- in-plane RMSE ({summary['plane']}, the plane the reference moves in): {summary['plane_rmse']:.6g} m"] if summary["plane"] != "xy" else []),
+        *([] if summary["reference_orientation"] else ["- the reference measures positions only: no rotation error or RPE"]),
         "",
-        "| statistic | APE translation (m) | APE XY (m) | APE rotation (deg) |",
-        "|---|---|---|---|",
+        "| statistic | APE translation (m) | APE XY (m) |" + (" APE rotation (deg) |" if summary["reference_orientation"] else ""),
+        "|---|---|---|" + ("---|" if summary["reference_orientation"] else ""),
     ]
     for row in ROWS:
-        lines.append(
-            f"| {row} | {summary['ape_translation_m'][row]:.6g} | {summary['ape_translation_xy_m'][row]:.6g} | {summary['ape_rotation_deg'][row]:.6g} |"
-        )
+        rotation = f" {summary['ape_rotation_deg'][row]:.6g} |" if summary["reference_orientation"] else ""
+        lines.append(f"| {row} | {summary['ape_translation_m'][row]:.6g} | {summary['ape_translation_xy_m'][row]:.6g} |{rotation}")
     if "rpe" in summary:
         rpe = summary["rpe"]
         lines += [

@@ -41,6 +41,7 @@ class Dataset:
     beacon_ranges: list[BeaconRange] = field(default_factory=list)
     ground_truth: Trajectory | None = None
     ground_truth_note: str = ""
+    ground_truth_orientation: bool = True  # False: the ground truth measures positions only (GPS, 2-D tracks); its quaternions are placeholders
     enu_origin: tuple[float, float, float] | None = None  # WGS-84 latitude, longitude (deg), altitude (m) of the ground truth's ENU frame, when georeferenced
     trajectories: dict[str, Trajectory] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)

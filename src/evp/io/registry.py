@@ -57,8 +57,35 @@ def detect_reader(path: str | Path) -> DatasetReader:
             raise AmbiguousFormatError(f"{path}: matches more than one dataset format: {found}; name the one to read with {choose}")
         if matches:
             return matches[0]
+    raise UnknownFormatError(f"{path}: {what_is_missing(path)}")
+
+
+def what_is_missing(path: Path) -> str:
+    """Why no reader took ``path``, said for the three near misses a new user makes (an empty
+    folder, a bare folder of images, a folder of other files), else what each reader looked for."""
+    from evp.io.readers.image_folder import IMAGE_SUFFIXES
+    from evp.io.readers.video import VIDEO_SUFFIXES
+
     looked = "; ".join(f"{r.name}: {r.looks_for}" for r in readers())
-    raise UnknownFormatError(f"{path}: not a dataset EVP recognises (looked for {looked})")
+    if not path.is_dir():
+        return f"not a dataset file EVP reads ({path.suffix or 'no suffix'}); evp formats lists the formats (looked for {looked})"
+    files = [p for p in path.iterdir() if not p.name.startswith(".")]
+    if not files:
+        return "the folder is empty; give a dataset folder, a video or a bag (evp formats lists what EVP reads)"
+    images = [p for p in (path / "images" if (path / "images").is_dir() else path).iterdir() if p.suffix.lower() in IMAGE_SUFFIXES]
+    if images:
+        return (
+            f"a folder of {len(images)} images needs their times: times.txt (one time in seconds per line, for the images in name order) "
+            "or images.txt ('time filename' lines) beside them, and a calibration: calib.txt ('fx fy cx cy [k1 k2 p1 p2 [k3]]'), "
+            "camera.yaml, or --camera FILE|PROFILE (evp camera list)"
+        )
+    videos = [p for p in files if p.suffix.lower() in VIDEO_SUFFIXES]
+    if videos:
+        return f"the folder holds a video: give the video file itself, e.g. {videos[0]}"
+    if not any(p.is_dir() for p in files):
+        suffixes = sorted({p.suffix.lower() or "(none)" for p in files})
+        return f"no images, video or recording here (its {len(files)} files end {', '.join(suffixes[:6])}); evp formats lists what EVP reads"
+    return f"not a dataset EVP recognises (looked for {looked})"
 
 
 def open_dataset(path: str | Path, fmt: str | None = None) -> Dataset:

@@ -26,13 +26,6 @@ from evp.types import CameraModel, LensModel
 # camera optical axes (columns x, y, z) in the body frame (x forward, y left, z up)
 DOWNWARD = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # image top = forward
 FORWARD = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-CAMERA_PRESETS = {
-    "nexus5x_640x380": "nexus5x_640x380",
-    "global_752x480": "global_shutter_752x480",
-    "phone_1280x720": "phone_1280x720",
-    "car_640x194": "car_640x194",
-    "car_1241x376": "car_1241x376",
-}
 # Kannala-Brandt k1..k4 of the simulated fisheye: TUM VI's cam0 (a 195-degree lens, Schubert et
 # al. 2018), a real lens's mild departure from the ideal equidistant projection
 FISHEYE_COEFFICIENTS = (0.0034823894022493434, 0.0007150348452162257, -0.0020532361418706202, 0.00020293673591811182)
@@ -46,7 +39,7 @@ class SimOptions(BaseModel):
     duration_s: float | None = Field(None, ge=0.15, description="seconds (at least 0.15: four motion samples; None: the scenario's)")
     seed: int = 0
     fps: float = Field(30.0, gt=0, le=240)
-    camera: str | None = Field(None, description="camera preset: " + ", ".join(CAMERA_PRESETS))
+    camera: str | None = Field(None, description="camera profile shipped with EVP (evp camera list), as evp camera and camera.profile name them")
     texture: str | None = Field(None, description="rich, low, floor, wall, or image file(s) separated by commas")
     altitude_m: float | None = Field(None, gt=0)
     speed_m_s: float | None = Field(None, gt=0)
@@ -115,9 +108,7 @@ class Scenario:
 
 def _camera(options: SimOptions, default: str) -> CameraModel:
     name = options.camera or default
-    if name not in CAMERA_PRESETS:
-        raise UsageError(f"unknown camera preset {name!r}; choose one of {', '.join(CAMERA_PRESETS)}")
-    camera = load_profile(CAMERA_PRESETS[name])
+    camera = load_profile(name)  # one list of names for evp sim, evp camera and camera.profile
     if options.lens == "fisheye":
         return fisheye_camera(camera.width, camera.height, options.fisheye_fov_deg, FISHEYE_COEFFICIENTS if options.distortion else (0.0,) * 4, name)
     if not options.distortion:

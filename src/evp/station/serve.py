@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import errno
 import ipaddress
+import socket
 from pathlib import Path
 
 from evp.config import Settings
 from evp.errors import UsageError
+from evp.io.output_paths import writable_folder
 from evp.station.base_station import Station
 from evp.station.limits import dead_link_aware_websocket_protocol, guarded_http_protocol, limit_logs
 from evp.station.protocol import MAX_IMAGE_BYTES
@@ -42,12 +45,33 @@ def is_loopback(host: str) -> bool:
         return False
 
 
+def check_port(host: str, port: int) -> None:
+    """A UsageError when the station could not listen on ``host:port`` (in use, a privileged port,
+    an address not on this machine), found by binding it as uvicorn will (SO_REUSEADDR), before
+    the banner is printed or a certificate made."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind((host, port))
+        except OSError as exc:
+            if exc.errno == errno.EADDRINUSE:
+                reason = "is in use (another evp serve, or another program); choose another --port or stop that program"
+            elif exc.errno in (errno.EACCES, errno.EPERM):
+                reason = "needs administrator rights (ports below 1024); choose --port 8443 or another above 1023"
+            else:
+                reason = f"cannot be listened on ({(exc.strerror or str(exc)).lower()}); check --host"
+            raise UsageError(f"--host {host} --port {port}: {reason}") from None
+
+
 def serve(host: str, port: int, data_dir: Path, settings: Settings, db_url: str | None, mavlink_url: str | None, tls: bool, echo) -> None:
     import uvicorn
 
     limits = settings.station
     if limits.dev_loopback and not is_loopback(host):
         raise UsageError(f"--dev-loopback (no credentials) listens on loopback only, not on {host!r}: use --host 127.0.0.1")
+    check_port(host, port)
+    writable_folder(data_dir, "--data")
     data_dir.mkdir(parents=True, exist_ok=True)
     cert, key = ensure_certificate(data_dir / "tls") if tls else (None, None)
     station = Station(data_dir, settings, db_url, mavlink_url)

@@ -63,6 +63,7 @@ class CmuPlazaReader:
         check_increasing(truth_path, truth[:, 0], "ground-truth", truth_lines)
         yaw = Rotation.from_euler("z", truth[:, 3:4]).as_quat()
         dataset.ground_truth = Trajectory(np.column_stack([truth[:, 1:3], np.zeros(len(truth))]), yaw, truth[:, 0], "ground_truth")
+        dataset.ground_truth_orientation = False
         dataset.ground_truth_note = "2-D vehicle track (z = 0); its heading is the odometry's own integrated heading, only positions are independent"
         odometry_path = path / f"{prefix}odometry_DR.csv"
         odometry, odometry_lines, _ = read_table(odometry_path, columns=3)

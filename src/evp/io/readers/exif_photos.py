@@ -122,6 +122,7 @@ class ExifPhotoReader:
         )
         quats = np.tile([0.0, 0.0, 0.0, 1.0], (len(fixes), 1))
         dataset.ground_truth = Trajectory(np.column_stack([east, north, up]), quats, times, "gps_enu")
+        dataset.ground_truth_orientation = False
         dataset.ground_truth_note = (
             f"EXIF GPS in ENU at the first fix ({origin.latitude_deg:.6f}, {origin.longitude_deg:.6f}, {origin.altitude_m:.1f} m); position only"
         )

@@ -10,10 +10,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from evp.calib.camera_files import read_camera
+from evp.calib.camera_files import is_kitti_calib, read_camera
 from evp.errors import CalibrationError, DatasetError
 from evp.io.dataset import Dataset, check_increasing, image_file_frames, image_size
-from evp.io.readers.kitti import is_kitti_calib, kitti_camera, read_kitti_projection
 from evp.io.text_tables import read_named_lines
 from evp.io.trajectory import read_timestamps, read_trajectory
 
@@ -57,21 +56,17 @@ class ImageFolderReader:
         missing = [p for p in paths if not p.is_file()]
         if missing:
             raise DatasetError(stamp_file, f"{len(missing)} listed images are missing, first {missing[0].name}")
+        dataset = Dataset(path.name, self.name, path, None, stamps, image_file_frames(stamps, paths))
         calibration = _calibration_file(path)
         if calibration is None:
-            raise CalibrationError(path, f"no calibration file (one of {', '.join(CALIBRATION_FILES)})")
-        width, height = image_size(paths[0])
-        note = None
-        if is_kitti_calib(calibration):  # KITTI's P0: lines, not the plain numbers of RPG's calib.txt
-            camera = kitti_camera(read_kitti_projection(calibration, 0), width, height)
-            note = f"calibration: {calibration.name} in KITTI form, camera 0's projection P0 (rectified, no distortion)"
+            dataset.notes.append(f"no calibration file ({', '.join(CALIBRATION_FILES)}): give --camera FILE|PROFILE")
         else:
-            camera = read_camera(calibration, width, height)
-        if (camera.width, camera.height) != (width, height):
-            raise CalibrationError(calibration, f"calibration is for {camera.width}x{camera.height} but images are {width}x{height}")
-        dataset = Dataset(path.name, self.name, path, camera, stamps, image_file_frames(stamps, paths))
-        if note:
-            dataset.notes.append(note)
+            width, height = image_size(paths[0])
+            dataset.camera = read_camera(calibration, width, height)
+            if (dataset.camera.width, dataset.camera.height) != (width, height):
+                raise CalibrationError(calibration, f"calibration is for {dataset.camera.width}x{dataset.camera.height} but images are {width}x{height}")
+            if is_kitti_calib(calibration):  # KITTI's P0: lines, not the plain numbers of RPG's calib.txt
+                dataset.notes.append(f"calibration: {calibration.name} in KITTI form, camera 0's projection P0 (rectified, no distortion)")
         if (path / "groundtruth.txt").is_file():
             dataset.ground_truth = read_trajectory(path / "groundtruth.txt")
             dataset.ground_truth_note = "groundtruth.txt (TUM)"

@@ -9,49 +9,20 @@ beside ``dataset/sequences/NN``.
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import numpy as np
 
-from evp.errors import CalibrationError, DatasetError
+from evp.calib.camera_files import is_kitti_calib, kitti_camera, read_kitti_projection
+from evp.errors import DatasetError
 from evp.io.dataset import Dataset, check_increasing, image_file_frames, image_size
 from evp.io.trajectory import TrajectoryFormat, read_timestamps, read_trajectory
-from evp.types import CameraModel, Trajectory
+from evp.types import Trajectory
 
 # KITTI's cameras are triggered by the Velodyne at 10 Hz (Geiger et al., "Vision meets Robotics:
 # The KITTI Dataset", IJRR 2013, section 2); times.txt measures about 0.1036 s between frames.
 KITTI_FRAME_RATE_HZ = 10.0
 IMAGE_FOLDERS = {"image_0": 0, "image_2": 2}  # the left camera, grey then colour, and its P line
-PROJECTION_LINE = re.compile(r"^\s*P\d\s*:")
-
-
-def is_kitti_calib(path: Path) -> bool:
-    """Whether a ``calib.txt`` holds KITTI projection lines (``P0: ...``) rather than plain numbers."""
-    try:
-        lines = [line for line in path.read_text().splitlines() if line.strip()]
-    except (OSError, UnicodeDecodeError):
-        return False
-    return bool(lines) and PROJECTION_LINE.match(lines[0]) is not None
-
-
-def read_kitti_projection(path: Path, camera: int = 0) -> np.ndarray:
-    """The 3x4 ``P<camera>`` matrix of a KITTI ``calib.txt`` (rectified, in camera 0's frame)."""
-    if not path.is_file():
-        raise CalibrationError(path, "calib.txt not found")
-    key = f"P{camera}:"
-    for number, line in enumerate(path.read_text().splitlines(), start=1):
-        if line.startswith(key):
-            try:
-                return np.array([float(v) for v in line.split()[1:]]).reshape(3, 4)
-            except ValueError as exc:
-                raise CalibrationError(path, f"P{camera} must hold 12 numbers: {exc}", line=number) from exc
-    raise CalibrationError(path, f"no '{key}' line")
-
-
-def kitti_camera(P: np.ndarray, width: int, height: int, camera: int = 0) -> CameraModel:
-    """The pinhole of a rectified KITTI camera from its projection ``P = K [I | t]`` (no distortion)."""
-    return CameraModel(width, height, float(P[0, 0]), float(P[1, 1]), float(P[0, 2]), float(P[1, 2]), name=f"kitti_cam{camera}")
 
 
 def _camera0_to_camera(P: np.ndarray) -> np.ndarray:

@@ -64,6 +64,7 @@ class TucLabyrinthReader:
             check_increasing(path / TRUTH, truth[:, 0], "ground-truth", truth_lines)
             positions = np.column_stack([truth[:, 1:3], np.zeros(len(truth))])
             dataset.ground_truth = Trajectory(positions, np.tile([0.0, 0.0, 0.0, 1.0], (len(truth), 1)), truth[:, 0], "ground_truth")
+            dataset.ground_truth_orientation = False
             dataset.ground_truth_note = "2-D robot positions (z = 0), no heading"
         dataset.notes.append("yaw rate = (v_left - v_right) / (2 x wheel_base), libRSF's differential-drive model")
         return dataset

@@ -86,7 +86,7 @@ class VideoReader:
                 camera = camera.scaled(width, height)
             dataset.camera = camera
         else:
-            dataset.notes.append("no calibration beside the video (<stem>.yaml or camera.yaml)")
+            dataset.notes.append("no calibration beside the video (<stem>.yaml or camera.yaml): give --camera FILE|PROFILE")
         telemetry = _companion(path, f"{path.stem}.csv", "telemetry.csv")
         if telemetry:
             for sensor, records in split_by_sensor(read_telemetry_csv(telemetry)).items():

@@ -26,14 +26,16 @@ function redraw() {
     plotLines($("top-view"), [
       { points: georeferenced.map(p => eastNorth(origin, p.latitude_deg, p.longitude_deg)), color: "#1565c0", label: "fused" },
       { points: fixes.map(f => eastNorth(origin, f.latitude_deg, f.longitude_deg)), color: "#ef6c00", label: "GPS" },
-    ], ["east (m)", "north (m)"], true);
+    ], ["east (m)", "north (m)"], { equal: true, unit: "m" });
   } else {
+    // a monocular map has no metric scale until the navigation filter gives it one: say so in the units
+    const metricTop = tracked.length > 0 && tracked[tracked.length - 1].metric, unit = metricTop ? "m" : "map units";
     const top = tracked.map(p => plane === "xy" ? [p.t[0], p.t[1]] : [p.t[0], p.t[2]]);
-    plotLine($("top-view"), top, plane === "xy" ? ["x", "y"] : ["x", "z"], true);
+    plotLine($("top-view"), top, plane === "xy" ? [`x (${unit})`, `y (${unit})`] : [`x (${unit})`, `z (${unit})`], { equal: true, unit });
   }
   const metric = tracked.length && tracked[tracked.length - 1].metric;
   const up = tracked.map(p => [p.timestamp, metric || plane === "xy" ? (p.metric ? p.t[2] : -p.t[2]) : -p.t[1]]);
-  plotLine($("altitude"), up, ["time (s)", metric ? "altitude (m)" : plane === "xy" ? "altitude (−z)" : "altitude (−y)"], false);
+  plotLine($("altitude"), up, ["time (s)", metric ? "altitude (m)" : plane === "xy" ? "height, −z (map units)" : "height, −y (map units)"], {});
 }
 
 let redrawPending = false;
@@ -87,21 +89,41 @@ function refreshSelect() {
   select.innerHTML = "";
   for (const id of ids) {
     const option = document.createElement("option");
-    option.value = id; option.textContent = `${id} (${state.live[id].device || "mobile"}${state.live[id].connected ? "" : ", offline"})`;
+    option.value = id; option.textContent = `${id} (${state.live[id].device || "mobile"}${state.live[id].ended ? ", " + state.live[id].ended : state.live[id].connected ? "" : ", offline"})`;
     option.selected = id === state.selected;
     select.appendChild(option);
   }
   updateStatusBar();
 }
 
+// What a session is doing, honestly: its end and a lost link win over the last status the
+// station sent while it was live (which said "starting" or "running").
+function sessionState(live) {
+  if (!live) return "idle";
+  if (live.ended) return live.ended;
+  if (!live.connected) return "disconnected (may resume)";
+  return live.status ? live.status.state : "starting";
+}
+
 function updateStatusBar() {
   const live = state.live[state.selected];
   $("st-comm").textContent = live ? (live.connected ? "connected" : "disconnected") : "no mobile station";
-  const s = live && live.status;
-  $("st-state").textContent = s ? s.state : "idle";
-  $("st-fps").textContent = s ? s.fps.toFixed(1) : "0";
-  $("st-latency").textContent = s && s.latency_ms_p50 ? s.latency_ms_p50.toFixed(0) + " ms" : "–";
+  const s = live && live.status, streaming = live && live.connected && !live.ended;
+  $("st-state").textContent = sessionState(live);
+  $("st-fps").textContent = s && streaming ? s.fps.toFixed(1) : "0";
+  $("st-latency").textContent = s && streaming && s.latency_ms_p50 ? s.latency_ms_p50.toFixed(0) + " ms" : "–";
+  $("st-frames").textContent = s ? `${s.frames_received} received, ${s.frames_estimated} estimated` : "0";
   $("st-dropped").textContent = s ? String(s.frames_dropped) : "0";
+}
+
+// The recorded sessions' rows follow the live counts between reloads (the table is read from the
+// database on connect and end; the status bar's counts come every second): both show one number.
+function updateSessionRow(id) {
+  const live = state.live[id], row = document.querySelector(`#sessions tbody tr[data-session="${id}"]`);
+  if (!live || !row || !live.status) return;
+  const s = live.status;
+  row.cells[2].textContent = live.ended || (live.connected ? "live" : "disconnected");
+  row.cells[3].textContent = s.frames_received; row.cells[4].textContent = s.frames_estimated; row.cells[5].textContent = s.frames_dropped;
 }
 
 function fillSettings(config) {
@@ -120,8 +142,10 @@ async function loadSessions() {
   tbody.innerHTML = "";
   for (const s of body.sessions) {
     const row = tbody.insertRow();
+    row.dataset.session = s.id;
     for (const value of [s.id, s.device, s.status, s.frames_received, s.frames_estimated, s.frames_dropped]) row.insertCell().textContent = value;
     row.insertCell().innerHTML = `<a href="/api/sessions/${encodeURIComponent(s.id)}/trajectory.tum">TUM</a> · <a href="/api/sessions/${encodeURIComponent(s.id)}/recording.mcap">MCAP</a>`;
+    updateSessionRow(s.id);
   }
 }
 
@@ -153,13 +177,20 @@ function onMessage(message) {
       if (ALARMS[e.code]) state.alarms[e.session_id] = ALARMS[e.code];
       if (["gps_back", "trust_restored", "georeferenced"].includes(e.code)) delete state.alarms[e.session_id];
       if (e.session_id === state.selected) updateBanner();
-      if (["connected", "ended", "interrupted", "resumed"].includes(e.code)) loadSessions();
+      const live = e.session_id && state.live[e.session_id];
+      if (live && ["ended", "interrupted", "released"].includes(e.code)) { live.ended = e.code; live.connected = false; }
+      if (live && ["connected", "resumed"].includes(e.code)) { delete live.ended; live.connected = true; }
+      if (["connected", "ended", "interrupted", "resumed", "released"].includes(e.code)) loadSessions();
+      if (live) { refreshSelect(); }
       break;
     }
-    case "status":
-      state.live[message.session_id] = Object.assign(state.live[message.session_id] || {}, { status: message.status, connected: message.connected });
+    case "status": {
+      const live = state.live[message.session_id] = Object.assign(state.live[message.session_id] || {}, { status: message.status });
+      if (!live.ended) live.connected = message.connected;
       if (!$("session-select").querySelector(`option[value="${message.session_id}"]`)) refreshSelect(); else updateStatusBar();
+      if (document.querySelector(`#sessions tbody tr[data-session="${message.session_id}"]`)) updateSessionRow(message.session_id); else loadSessions();
       break;
+    }
     case "sessions": loadSessions(); break;
     case "config": fillSettings(message.config); break;
   }

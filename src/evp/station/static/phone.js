@@ -4,7 +4,11 @@
 
 const $ = id => document.getElementById(id);
 const PROTOCOL = 1, ENCODING = { jpeg: 1, png: 2 };
-const phone = { socket: null, config: null, sessionId: null, nextSeq: 0, sent: 0, poses: 0, dropped: 0, imu: 0, gps: 0, stream: null, timer: null };
+const phone = { socket: null, config: null, sessionId: null, nextSeq: 0, sent: 0, poses: 0, dropped: 0, errors: 0, skipped: 0, imu: 0, gps: 0,
+                stream: null, timer: null, sending: Promise.resolve(), inFlight: 0 };
+// frames captured but not yet sent (being encoded): beyond this the phone is behind, and a new
+// frame is skipped at capture rather than queued (the station wants the newest frame anyway)
+const MAX_IN_FLIGHT = 2;
 window.evpPhone = phone;
 
 function log(text) {
@@ -34,6 +38,14 @@ async function pairIfAsked() {
 // The station sends a heartbeat every second: a link silent for 3 s is dead (a Wi-Fi handover
 // leaves no close frame), so drop it and resume the session on a new one at once.
 const DEAD_AFTER_MS = 3000;
+
+// The link opens (and the station starts a session, with its recording) only when the camera
+// starts: a phone that opens this page and never streams leaves no empty session behind. The
+// station's camera settings come with the link (its config message answers hello).
+function configArrived() {
+  return phone.config ? Promise.resolve(phone.config) : new Promise(resolve => { phone.onConfig = resolve; });
+}
+
 function connect() {
   const socket = phone.socket = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws/mobile");
   socket.binaryType = "arraybuffer";
@@ -59,13 +71,17 @@ setInterval(() => {
 
 function onMessage(message) {
   switch (message.type) {
-    case "welcome": phone.sessionId = message.session_id; phone.nextSeq = message.next_seq; $("session").textContent = message.session_id; break;
-    case "config": phone.config = message; log(`config: ${message.camera.width}x${message.camera.height} at ${message.fps} fps, ${message.encoding}`); if (phone.stream) announce(); break;
+    case "welcome":
+      phone.sessionId = message.session_id; phone.nextSeq = message.next_seq; $("session").textContent = message.session_id;
+      if (phone.stream && !phone.sensing) { phone.sensing = true; startSensors(); } // once the link is up: the first fix is not lost
+      break;
+    case "config": phone.config = message; if (phone.onConfig) { phone.onConfig(message); phone.onConfig = null; } log(`config: ${message.camera.width}x${message.camera.height} at ${message.fps} fps, ${message.encoding}`); if (phone.stream) announce(); break;
     case "pose": phone.poses++; showPose(message); break;
     case "dropped": phone.dropped++; break;
     case "enable": $("enable").checked = message.enabled; break;
     case "status": break;
     case "error":
+      phone.errors++;
       log(`station error ${message.code}: ${message.message}`);
       if (message.code === "bad_token") log("this phone is not paired with the station: scan the QR code on the operator page");
       break;
@@ -100,22 +116,25 @@ function header(seq, timestamp, encoding, width, height, length) {
   return view.buffer;
 }
 
+// A frame's sequence number and timestamp are taken together, when it is captured, and frames
+// are sent in capture order: encoding (toBlob) is asynchronous, and a loaded phone finishes two
+// encodings out of order, which the station refuses as out of order (docs/protocol.md).
 function captureFrame() {
   const c = phone.config, video = $("preview"), canvas = $("frame");
   if (!c || video.readyState < 2 || !phone.socket || phone.socket.readyState !== WebSocket.OPEN) return;
-  if (phone.socket.bufferedAmount > 1 << 20) return; // the link is behind: skip rather than queue
+  if (phone.socket.bufferedAmount > 1 << 20 || phone.inFlight >= MAX_IN_FLIGHT) { $("skipped").textContent = ++phone.skipped; return; } // behind: skip rather than queue
   canvas.width = c.camera.width; canvas.height = c.camera.height;
   canvas.getContext("2d").drawImage(video, 0, 0, canvas.width, canvas.height);
-  const timestamp = performance.now() / 1000, encoding = c.encoding === "png" ? "png" : "jpeg";
-  canvas.toBlob(async blob => {
-    const payload = await blob.arrayBuffer();
-    const seq = phone.nextSeq++;
+  const seq = phone.nextSeq++, timestamp = performance.now() / 1000, encoding = c.encoding === "png" ? "png" : "jpeg";
+  const { width, height } = canvas;
+  const encoded = new Promise(resolve => canvas.toBlob(resolve, "image/" + encoding, (c.jpeg_quality || 85) / 100)).then(blob => blob.arrayBuffer());
+  phone.inFlight++;
+  phone.sending = phone.sending.then(() => encoded).then(payload => {
     const frame = new Uint8Array(32 + payload.byteLength);
-    frame.set(new Uint8Array(header(seq, timestamp, encoding, canvas.width, canvas.height, payload.byteLength)), 0);
+    frame.set(new Uint8Array(header(seq, timestamp, encoding, width, height, payload.byteLength)), 0);
     frame.set(new Uint8Array(payload), 32);
-    phone.socket.send(frame.buffer);
-    phone.sent++; $("sent").textContent = phone.sent;
-  }, "image/" + encoding, (c.jpeg_quality || 85) / 100);
+    if (phone.socket.readyState === WebSocket.OPEN) { phone.socket.send(frame.buffer); phone.sent++; $("sent").textContent = phone.sent; }
+  }).catch(error => log("frame " + seq + ": " + error)).finally(() => { phone.inFlight--; });
 }
 
 // The back camera in the phone's IMU axes (W3C device axes: x right, y to the top of the screen,
@@ -149,18 +168,18 @@ async function start() {
   if (typeof DeviceMotionEvent !== "undefined" && DeviceMotionEvent.requestPermission) {
     try { await DeviceMotionEvent.requestPermission(); } catch (error) { log("motion sensors: " + error); } // iOS asks on a tap
   }
-  const c = phone.config;
-  if (!c) { log("no configuration from the station yet"); return; }
+  $("start").disabled = true;
+  connect(); // the station answers hello with its config; the frames start with the camera (announce)
+  const c = await configArrived();
   try {
     phone.stream = await navigator.mediaDevices.getUserMedia({ audio: false, video: {
       facingMode: "environment", width: { ideal: c.camera.width }, height: { ideal: c.camera.height }, frameRate: { ideal: c.fps } } });
   } catch (error) { log("camera: " + error); return; }
   $("preview").srcObject = phone.stream;
-  startSensors();
   announce();
-  $("start").disabled = true;
+  if (!phone.sensing) { phone.sensing = true; startSensors(); } // the link is up: the first fix is not lost
 }
 
 $("start").onclick = start;
 $("enable").onchange = event => send({ type: "enable", enabled: event.target.checked });
-pairIfAsked().finally(connect);
+pairIfAsked().then(() => { $("link").textContent = "ready (opens when the camera starts)"; });

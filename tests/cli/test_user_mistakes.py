@@ -1,0 +1,128 @@
+"""The mistakes a new user makes in the first hour, each answered by one specific line (no
+traceback), with the exit code of its category, before any long work starts.
+
+The commands run in-process (``evp.cli.app.main`` with its argv), so the whole table costs
+seconds; tests/cli/test_app.py checks the same entry point as a real subprocess.
+"""
+
+from __future__ import annotations
+
+import socket
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from evp.cli.app import main
+from evp.errors import ExitCode
+from tests.conftest import SAMPLE
+
+
+def evp_main(monkeypatch, capsys, *args) -> tuple[int, str]:
+    """(exit code, stderr) of ``evp ARGS`` run in this process."""
+    monkeypatch.setattr(sys, "argv", ["evp", *map(str, args)])
+    with pytest.raises(SystemExit) as exited:
+        main()
+    return exited.value.code or 0, capsys.readouterr().err
+
+
+def one_line_error(err: str) -> str:
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), err
+    assert "Traceback" not in err
+    return lines[0]
+
+
+@pytest.fixture
+def a_file(tmp_path) -> Path:
+    path = tmp_path / "results.txt"
+    path.write_text("not a folder")
+    return path
+
+
+@pytest.fixture
+def image_folder(tmp_path) -> Path:
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(folder / f"{i:03d}.png"), np.zeros((24, 32), np.uint8))
+    return folder
+
+
+GT = SAMPLE / "groundtruth.txt"
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (("run", SAMPLE, "--out", "{file}"), "--out {file}: is a file, and a folder is needed"),
+        (("run", SAMPLE, "--out", "{file}/run"), "is a file, so nothing can be made under it"),
+        (("sim", "drone-flight", "--out", "{file}", "--duration", "1"), "--out {file}: is a file"),
+        (("eval", GT, GT, "--report", "{file}"), "--report {file}: is a file"),
+        (("eval", GT, GT, "--json", "{tmp}"), "--json {tmp}: is a folder, and a file name is needed here, e.g."),
+        (("calibrate", "{images}", "--cols", "9", "--rows", "7", "--square", "0.02", "--out", "{file}/camera.yaml"), "is a file, so nothing"),
+        (("align", SAMPLE, "--out", "{file}"), "--out {file}: is a file"),
+        (("convert", GT, "{tmp}"), "DST {tmp}: is a folder"),
+    ],
+)
+def test_unusable_outputs_are_refused_before_the_work(monkeypatch, capsys, tmp_path, a_file, image_folder, args, expected):
+    names = {"file": a_file, "tmp": tmp_path, "images": image_folder}
+    code, err = evp_main(monkeypatch, capsys, *(str(a).format(**names) for a in args))
+    assert code == ExitCode.USAGE
+    assert expected.format(**names) in one_line_error(err)
+
+
+def test_datasets_that_are_near_misses_say_what_is_missing(monkeypatch, capsys, tmp_path, image_folder):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    others = tmp_path / "notes"
+    others.mkdir()
+    (others / "a.csv").write_text("x\n")
+    (others / "b.txt").write_text("y\n")
+    expected = {
+        empty: "the folder is empty",
+        image_folder: "a folder of 3 images needs their times: times.txt",
+        others: "no images, video or recording here (its 2 files end .csv, .txt)",
+    }
+    for path, message in expected.items():
+        code, err = evp_main(monkeypatch, capsys, "run", path, "--out", tmp_path / "out")
+        assert code == ExitCode.DATA
+        assert message in one_line_error(err)
+    assert "--camera FILE|PROFILE" in evp_main(monkeypatch, capsys, "info", image_folder)[1]
+
+
+def test_settings_typo_names_the_nearest_key(monkeypatch, capsys, tmp_path):
+    settings = tmp_path / "settings.yaml"
+    settings.write_text("orb:\n  n_featurs: 500\n")
+    code, err = evp_main(monkeypatch, capsys, "run", SAMPLE, "--out", tmp_path / "out", "--config", settings)
+    assert code == ExitCode.USAGE
+    assert one_line_error(err).endswith("orb.n_featurs: no such setting; did you mean orb.n_features?")
+    settings.write_text("estimatr: slam\n")
+    assert one_line_error(evp_main(monkeypatch, capsys, "config", "dump", settings)[1]).endswith("did you mean estimator?")
+
+
+def test_camera_profile_names_are_one_list(monkeypatch, capsys, tmp_path):
+    """evp sim takes the names evp camera lists; a near miss is named."""
+    from evp.calib.profiles import profile_names
+    from evp.sim.scenarios import SimOptions, build_scenario
+
+    for name in profile_names():
+        assert build_scenario("drone-flight", SimOptions(camera=name, duration_s=0.2)).camera.width > 0
+    code, err = evp_main(monkeypatch, capsys, "sim", "drone-flight", "--camera", "global_shuter_752x480", "--out", tmp_path / "sim", "--duration", "0.2")
+    assert code == ExitCode.USAGE
+    assert "did you mean global_shutter_752x480?" in one_line_error(err)
+
+
+def test_serve_on_a_busy_port_fails_before_its_banner_or_certificate(monkeypatch, capsys, tmp_path):
+    pytest.importorskip("uvicorn")
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        code, err = evp_main(monkeypatch, capsys, "serve", "--host", "127.0.0.1", "--port", port, "--data", tmp_path / "station")
+    assert code == ExitCode.USAGE
+    assert f"--port {port}: is in use" in one_line_error(err)
+    assert not (tmp_path / "station").exists()
+    assert capsys.readouterr().out == ""

@@ -1,0 +1,128 @@
+"""The operator page as a new user meets it, in a real headless Chromium: no session appears
+until a phone streams, the recorded-session counts follow the status bar while a session runs,
+the state says "ended" once it ends, the plots have real axes and the top view a scale bar; and
+the phone page keeps its frames in order on a throttled CPU (Chrome DevTools' CPU throttling)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import urllib.request
+
+import pytest
+
+from tests.conftest import SAMPLE
+from tests.station.conftest import insecure_tls, running_station
+from tests.station.test_browser import ARTIFACTS, CHROMIUM, write_y4m
+
+pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (scripts/test.sh installs it when it can)")
+
+ROW_MATCHES_STATUS_BAR = """sid => {
+  const row = document.querySelector(`#sessions tbody tr[data-session="${sid}"]`), live = window.evp.live[sid];
+  return row && live && live.status && live.status.frames_received > 0
+    && Number(row.cells[3].textContent) === live.status.frames_received
+    && document.getElementById('st-frames').textContent.startsWith(live.status.frames_received + ' received');
+}"""
+
+
+def _sessions(station) -> list[dict]:
+    with urllib.request.urlopen(f"{station.http}/api/sessions", context=insecure_tls()) as response:
+        return json.loads(response.read())["sessions"]
+
+
+def test_operator_counts_and_states_follow_a_session(station_data):
+    sync_api = pytest.importorskip("playwright.sync_api")
+    with running_station(station_data) as station, sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        context = browser.new_context(ignore_https_errors=True)
+        operator = context.new_page()
+        operator.goto(station.http)
+        operator.wait_for_function("document.getElementById('st-link').textContent === 'up'")
+        phone = context.new_page()  # opened, never started: no session, no recording
+        phone.goto(f"{station.http}/phone")
+        phone.wait_for_function("document.getElementById('link').textContent.startsWith('ready')")
+        assert _sessions(station) == [] and not list(station_data.glob("**/*.mcap"))
+        assert operator.inner_text("#st-state") == "idle"
+
+        stream = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "evp.cli",
+                "stream",
+                str(SAMPLE),
+                "--url",
+                station.url,
+                "--cafile",
+                str(station_data / "tls" / "cert.pem"),
+                "--quiet",
+                "--realtime",
+                "--max-frames",
+                "60",
+            ],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            operator.wait_for_function("window.evp.selected !== null", timeout=60_000)
+            sid = operator.evaluate("window.evp.selected")
+            # while it streams, the table's count is the status bar's (both from the live status)
+            operator.wait_for_function(ROW_MATCHES_STATUS_BAR, arg=sid, timeout=60_000)
+            assert operator.inner_text("#st-state") in ("starting", "running")
+            assert stream.wait(timeout=120) == 0, stream.stderr.read()
+        finally:
+            if stream.poll() is None:
+                stream.kill()
+                stream.wait()
+        operator.wait_for_function("document.getElementById('st-state').textContent === 'ended'", timeout=30_000)
+        operator.wait_for_function(
+            "sid => { const row = document.querySelector(`#sessions tbody tr[data-session=\"${sid}\"]`); return row && row.cells[2].textContent === 'ended'; }",
+            arg=sid,
+            timeout=30_000,
+        )
+        assert operator.inner_text("#st-fps") == "0"
+        top = operator.locator("#top-view")
+        assert int(top.get_attribute("data-xticks")) >= 3 and int(top.get_attribute("data-yticks")) >= 3
+        assert top.get_attribute("data-scale-bar").endswith("map units")
+        ARTIFACTS.mkdir(exist_ok=True)
+        operator.screenshot(path=str(ARTIFACTS / "operator_session_ended.png"), full_page=True)
+        browser.close()
+    rows = {row["id"]: row for row in _sessions_after(station_data)}
+    assert rows[sid]["status"] == "ended" and rows[sid]["frames_received"] == 60
+
+
+def _sessions_after(station_data) -> list[dict]:
+    from evp.station.store import SessionStore
+
+    store = SessionStore(f"sqlite:///{station_data / 'evp.sqlite'}")
+    try:
+        return store.list_sessions(limit=None)
+    finally:
+        store.close()
+
+
+def test_phone_frames_stay_in_order_on_a_throttled_cpu(tmp_path, station_data):
+    """The phone encodes frames asynchronously; under a 6x slower CPU two encodings finish out of
+    order, and frames numbered on completion reached the station out of order (refused)."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    from evp.io.registry import open_dataset
+
+    video = tmp_path / "sample.y4m"
+    write_y4m(video, [frame.image for frame in open_dataset(SAMPLE).frames()], fps=30)
+    args = ["--use-fake-ui-for-media-stream", "--use-fake-device-for-media-stream", f"--use-file-for-fake-video-capture={video}", "--no-sandbox"]
+    with running_station(station_data) as station, sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=args)
+        phone = browser.new_context(ignore_https_errors=True).new_page()
+        phone.context.new_cdp_session(phone).send("Emulation.setCPUThrottlingRate", {"rate": 6})
+        phone.goto(f"{station.http}/phone")
+        phone.wait_for_function("document.getElementById('link').textContent.startsWith('ready')", timeout=60_000)
+        phone.click("#start")
+        phone.wait_for_function("window.evpPhone.sessionId !== null", timeout=60_000)
+        phone.uncheck("#enable")  # the station records without estimating: the link is what is tested
+        phone.wait_for_function("window.evpPhone.sent >= 60", timeout=120_000)
+        counts = phone.evaluate("({sent: window.evpPhone.sent, errors: window.evpPhone.errors, skipped: window.evpPhone.skipped})")
+        log = phone.inner_text("#log")
+        browser.close()
+    assert counts["errors"] == 0, log

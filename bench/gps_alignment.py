@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import shutil
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -39,11 +38,10 @@ from evp.io.trajectory import read_trajectory
 from evp.pipeline import run_dataset
 from evp.run_setup import make_estimator
 from evp.sim.generate import generate
+from evp.sim.monitor_trials import drifting_track, first, monitor_run
 from evp.sim.scenarios import SimOptions
 from evp.sim.sensors import GpsConfig
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the monitor trials the tests use
-from tests.fusion.monitor_trials import drifting_track, first, monitor_run  # noqa: E402
 
 # seed 002, Table I: duration (s), target altitude (m); speed 4-8 m/s
 TABLE_I = {"A": (325, 81), "B": (356, 61), "C": (388, 31), "D": (103, 109), "E": (269, 81), "F": (192, 83), "G": (210, 30)}

@@ -27,13 +27,17 @@ class Experiment:
 
     def run(self, out: Path, progress: Callable[[str], None] = lambda text: None, quick: bool = False, executor=None, command: str = "") -> Path:
         """The report's path; ``executor`` runs a batched experiment's jobs (default: one local process)."""
-        module = importlib.import_module(f"evp.experiments.{self.module}")
-        if not hasattr(module, "jobs"):
-            return module.run(out, progress)
-        from evp.batch.executors import LocalProcesses
-        from evp.experiments.batched import run_experiment
+        from evp.experiments.batched import run_experiment, write_results
 
-        return run_experiment(module, self.variant, out, executor or LocalProcesses(1), quick, command or f"evp experiment {self.name} --out {out}", progress)
+        module = importlib.import_module(f"evp.experiments.{self.module}")
+        command = command or f"evp experiment {self.name} --out {out}"
+        if hasattr(module, "jobs"):
+            from evp.batch.executors import LocalProcesses
+
+            return run_experiment(module, self.variant, out, executor or LocalProcesses(1), quick, command, progress)
+        report = module.run(out, progress)  # runs in this process, the same with or without --quick
+        write_results(out, self.title, command, quick, [], note="figures in report.md only (this study predates results.json rows)")
+        return report
 
 
 EXPERIMENTS = {

@@ -72,16 +72,23 @@ def run_experiment(module, variant: str | None, out: Path, executor, quick: bool
         summary_markdown(batch),
     ]
     (out / "report.md").write_text("\n".join(lines))
+    write_results(out, report.title, command, quick, report.rows, failed_jobs={o.key: o.error for o in batch.failed})
+    return out / "report.md"
+
+
+def write_results(out: Path, title: str, command: str, quick: bool, rows: list[Row], **extra) -> Path:
+    """``results.json``: per row our figures, the paper's and whether ours are ahead."""
     results = {
-        "experiment": report.title,
+        "experiment": title,
         "command": command,
         "quick": quick,
-        "rows": [{"row": r.name, "ours": r.ours, "paper": r.paper, "ahead": r.ahead} for r in report.rows],
-        "failed_jobs": {o.key: o.error for o in batch.failed},
+        "rows": [{"row": r.name, "ours": r.ours, "paper": r.paper, "ahead": r.ahead} for r in rows],
+        **extra,
         "versions": versions(),
     }
-    (out / "results.json").write_text(json.dumps(results, indent=1, default=float))
-    return out / "report.md"
+    path = out / "results.json"
+    path.write_text(json.dumps(results, indent=1, default=float))
+    return path
 
 
 def markdown_table(header: list[str], rows: list[list[str]]) -> list[str]:

@@ -130,13 +130,13 @@ def fly(flight: str, duration_s: float, altitude_m: float, speed_m_s: float, fps
     from evp.sim.scenarios import SimOptions
 
     options = SimOptions(duration_s=duration_s, altitude_m=altitude_m, speed_m_s=speed_m_s, fps=fps, relief=False, seed=ord(flight))
-    with tempfile.TemporaryDirectory(prefix="evp-seed002-") as scratch:
+    with tempfile.TemporaryDirectory(prefix="evp-seed002-") as scratch:  # the frames are read as the run goes
         data = Path(scratch) / "data"
         generate("drone-flight", options, data, workers=1)
         dataset = open_dataset(data)
         truth = read_trajectory(data / "groundtruth_cam0_tum.txt")
-    settings = resolve_settings(Settings(), dataset)
-    run = run_dataset(dataset, make_estimator(camera_for(dataset, settings), settings, dataset), realtime_speed=1.0 if online else None)
+        settings = resolve_settings(Settings(), dataset)
+        run = run_dataset(dataset, make_estimator(camera_for(dataset, settings), settings, dataset), realtime_speed=1.0 if online else None)
     segments = run.segments()
     start = truth.positions[0, :2]
     record: dict = {
@@ -156,10 +156,12 @@ def fly(flight: str, duration_s: float, altitude_m: float, speed_m_s: float, fps
         after = aligned.timestamps > result.alignment.window[1] - result.alignment.clock_offset_s
         true_xy, ok = resample(truth, aligned.timestamps[after], 1.0)
         vs_truth = np.linalg.norm(aligned.positions[after][ok, :2] - true_xy[ok, :2], axis=1)
+        near_truth = np.abs(aligned.positions[after][ok, 2] - altitude_m) < NEAR_TARGET_M
         record[mode] = {
             "whole": error_statistics(result.errors_m),
             "near_target": error_statistics(result.errors_m[near]) if near.any() else None,
             "vs_truth_mean_m": float(vs_truth.mean()) if vs_truth.size else None,
+            "near_target_vs_truth": error_statistics(vs_truth[near_truth]) if near_truth.any() else None,
             "model": result.alignment.chosen["model"],
             "errors": _thin(result.errors_m, result.error_heights_m),
             "track": _thin(aligned.timestamps, aligned.positions[:, 0], aligned.positions[:, 1], aligned.positions[:, 2]),

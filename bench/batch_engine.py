@@ -37,7 +37,13 @@ SPEEDUP_COLUMNS = [
     ("speed-up vs 1 worker", "{speedup:.2f}x"),
     ("load average (1 min) at start", "{load:.1f}"),
 ]
-OVERHEAD_COLUMNS = [("executor", "{executor}"), ("empty jobs", "{jobs}"), ("wall s", "{wall_s:.2f}"), ("per job (ms)", "{per_job_ms:.0f}"), ("load average", "{load:.1f}")]
+OVERHEAD_COLUMNS = [
+    ("executor", "{executor}"),
+    ("empty jobs", "{jobs}"),
+    ("wall s", "{wall_s:.2f}"),
+    ("per job (ms)", "{per_job_ms:.0f}"),
+    ("load average", "{load:.1f}"),
+]
 
 
 def nothing() -> dict:
@@ -87,7 +93,9 @@ def main() -> None:
             load = os.getloadavg()[0]
             wall = timed_batch(work, executor)
             single.setdefault(name, wall)
-            print(speedup.add({"executor": name, "workers": workers, "jobs": len(work), "wall_s": wall, "speedup": single[name] / wall, "load": load}), flush=True)
+            print(
+                speedup.add({"executor": name, "workers": workers, "jobs": len(work), "wall_s": wall, "speedup": single[name] / wall, "load": load}), flush=True
+            )
     overhead = results.table("overhead", OVERHEAD_COLUMNS, key=["executor"], caption="jobs that return at once, 1 worker: the engine's cost per job")
     print(overhead.header(), flush=True)
     empty = [Job(f"empty{i}", "batch_engine:nothing") for i in range(args.empty_jobs)]

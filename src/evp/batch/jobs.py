@@ -75,7 +75,9 @@ def settings_grid(sets: list[str]) -> list[dict[str, Any]]:
 
 def overrides_label(overrides: dict[str, Any]) -> str:
     """A short, folder-safe label of a settings combination ("orb.n_features=500,slam.x=2")."""
-    text = ",".join(f"{name}={value if isinstance(value, str) else json.dumps(value, separators=(',', ':'))}" for name, value in overrides.items()) or "defaults"
+    text = (
+        ",".join(f"{name}={value if isinstance(value, str) else json.dumps(value, separators=(',', ':'))}" for name, value in overrides.items()) or "defaults"
+    )
     return re.sub(r"[^A-Za-z0-9_.=,+-]", "_", text)
 
 

@@ -103,10 +103,12 @@ def test_overrides_are_validated_with_a_suggestion():
 
 
 def test_the_progress_line_counts_and_estimates_the_time_left():
-    progress = Progress(total=10, done=3, failed=1, running=2, elapsed_s=65.0, mean_job_s=20.0, workers=2)
+    progress = Progress(total=10, done=3, failed=1, running=2, elapsed_s=65.0, mean_job_s=20.0, workers=2, running_elapsed_s=15.0)
     assert progress.waiting == 4
-    assert progress.time_left_s() == pytest.approx(20.0 * (4 + 1) / 2)
-    assert progress.line() == "4/10 finished (3 ok, 1 failed), 2 running, 4 waiting, 1m05s elapsed, ~50s left"
+    assert progress.time_left_s() == pytest.approx((20.0 * (4 + 2) - 15.0) / 2)
+    assert progress.line() == "4/10 finished (3 ok, 1 failed), 2 running, 4 waiting, 1m05s elapsed, ~52s left"
+    overdue = Progress(total=2, done=1, failed=0, running=1, elapsed_s=90.0, mean_job_s=20.0, workers=1, running_elapsed_s=70.0)
+    assert overdue.time_left_s() == 0.0
     assert "time left unknown" in Progress(3, 0, 0, 2, 1.0, None, 2).line()
 
 

@@ -89,7 +89,8 @@ def slowest(outcomes: list[Outcome], count: int = 5) -> list[Outcome]:
 @dataclass(frozen=True)
 class Progress:
     """The batch's state at one moment: how many jobs are done, running, failed and still waiting,
-    and the time left estimated from the mean time of the jobs computed so far."""
+    and the time left estimated from the mean time of the jobs computed so far, less the time the
+    running ones have already had (``running_elapsed_s``, summed)."""
 
     total: int
     done: int
@@ -98,6 +99,7 @@ class Progress:
     elapsed_s: float
     mean_job_s: float | None
     workers: int
+    running_elapsed_s: float = 0.0
 
     @property
     def waiting(self) -> int:
@@ -106,7 +108,8 @@ class Progress:
     def time_left_s(self) -> float | None:
         if self.mean_job_s is None:
             return None
-        return self.mean_job_s * (self.waiting + self.running / 2) / max(1, self.workers)
+        spent = min(self.running_elapsed_s, self.mean_job_s * self.running)  # a job past the mean is counted as about to end
+        return (self.mean_job_s * (self.waiting + self.running) - spent) / max(1, self.workers)
 
     def line(self) -> str:
         """One self-contained line (no cursor control), readable on a terminal and in a log."""

@@ -100,17 +100,18 @@ def run_batch(
         progress(f"{len(jobs)} jobs on {executor.describe()}")
     by_key = {job.key: job for job in jobs}
     where = executor.describe()
-    running = 0
+    started: dict[str, float] = {}  # key -> when the job was handed to the executor
     computed: list[float] = []
     last_line = clock()
     try:
-        while waiting or running:
-            while waiting and running < executor.capacity:
-                executor.start(waiting.pop(0))
-                running += 1
+        while waiting or started:
+            while waiting and len(started) < executor.capacity:
+                job = waiting.pop(0)
+                executor.start(job)
+                started[job.key] = clock()
             arrived = executor.finished(timeout=1.0)
             for outcome in arrived:
-                running -= 1
+                del started[outcome.key]
                 outcomes[outcome.key] = outcome
                 _store(out, by_key[outcome.key], outcome)
                 if outcome.ok:
@@ -119,7 +120,7 @@ def run_batch(
                 else:
                     progress(f"{outcome.key}: FAILED after {format_duration(outcome.wall_s)}: {outcome.error}")
             if arrived or clock() - last_line >= PROGRESS_EVERY_S:
-                progress(_progress(jobs, outcomes, running, clock() - start, computed, executor.capacity).line())
+                progress(_progress(jobs, outcomes, started, clock(), start, computed, executor.capacity).line())
                 last_line = clock()
     finally:
         executor.close()
@@ -128,9 +129,10 @@ def run_batch(
     return result
 
 
-def _progress(jobs, outcomes, running, elapsed, computed, workers) -> Progress:
+def _progress(jobs, outcomes, started, now, start, computed, workers) -> Progress:
     done = sum(o.ok for o in outcomes.values())
-    return Progress(len(jobs), done, len(outcomes) - done, running, elapsed, sum(computed) / len(computed) if computed else None, workers)
+    mean = sum(computed) / len(computed) if computed else None
+    return Progress(len(jobs), done, len(outcomes) - done, len(started), now - start, mean, workers, sum(now - t for t in started.values()))
 
 
 def summary_markdown(result: BatchResult, slowest_count: int = 5) -> str:

@@ -77,7 +77,7 @@ MODES = ("2d+baro", "3d+baro")
 FLIGHTS = {
     "table1": (list(TABLE_I), ["D", "G"]),
     "tables2-5": ([*TABLE_I, *TABLE_IV], ["D", "G", "I"]),
-    "figs": (["A", "C", "G", "I", "J", "L", "O"], ["C", "G", "I"]),
+    "figs": (["A", "C", "G", "I", "J", "L", "O"], ["D", "G", "I"]),  # quick: the quick tables2-5 flights (their jobs can be copied over)
 }
 QUICK_CRUISE_S, QUICK_WINDOW_S, QUICK_FPS, FULL_FPS = 45.0, 20.0, 5.0, 10.0
 SERIES_POINTS = 600

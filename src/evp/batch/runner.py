@@ -101,7 +101,7 @@ def run_batch(
     by_key = {job.key: job for job in jobs}
     where = executor.describe()
     started: dict[str, float] = {}  # key -> when the job was handed to the executor
-    computed: list[float] = []
+    computed = [o.wall_s for o in outcomes.values()]  # job times for the estimate of the time left, earlier runs' too
     last_line = clock()
     try:
         while waiting or started:

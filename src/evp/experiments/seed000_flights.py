@@ -64,6 +64,9 @@ def fly(scenario: str, seed: int, duration_s: float, fps: float) -> dict:
         result, navigation = estimate(dataset, settings)
         metrics = refine_and_write(result, navigation, dataset, settings, Path(scratch) / "run")
         record: dict = {"frames": metrics["frames"], "tracked_fraction": metrics["tracked_fraction"], "path_m": metrics.get("reference_path_length_m")}
+        if metrics["tracked_frames"] < 3 or len(result.final_trajectory()) < 3:  # SLAM never initialised (e.g. too little texture): a result, not an error
+            record["navigation"] = "SLAM tracked too few frames to score"
+            return record
         slam = evaluate(dataset.ground_truth, result.final_trajectory(), settings.eval.model_copy(update={"align": "sim3"}))
         record["slam_rmse_xy_m"] = float(np.sqrt(np.mean(slam.ape_translation_xy**2)))
         record["slam_series"] = _thin(slam.ref.timestamps - dataset.frame_times[0], slam.ape_translation_xy)

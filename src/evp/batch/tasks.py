@@ -5,6 +5,11 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
+from evp.config import load_settings, with_overrides
+from evp.errors import DatasetError
+from evp.io.registry import open_dataset
+from evp.run_setup import estimate, refine_and_write, resolve_settings
+
 # the figures of metrics.json a sweep's table keeps (the rest stays in each run's own files)
 METRICS = ("frames", "tracked_frames", "tracked_fraction", "rmse", "matched_poses", "reference_path_length_m", "scale")
 
@@ -12,10 +17,6 @@ METRICS = ("frames", "tracked_frames", "tracked_fraction", "rmse", "matched_pose
 def run_dataset(dataset: str, overrides: dict, config: str | None = None, out: str | None = None) -> dict:
     """``evp run DATASET [--config]`` with ``overrides`` (dotted settings) on this worker; the run's
     files go to ``out`` when given (a folder the worker can write), else to a temporary folder."""
-    from evp.config import load_settings, with_overrides
-    from evp.errors import DatasetError
-    from evp.io.registry import open_dataset
-    from evp.run_setup import estimate, refine_and_write, resolve_settings
 
     data = open_dataset(Path(dataset))
     if data.num_frames == 0:

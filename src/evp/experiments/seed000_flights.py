@@ -23,7 +23,15 @@ from pathlib import Path
 import numpy as np
 
 from evp.batch.jobs import Job, Outcome
+from evp.config import Settings, with_overrides
+from evp.eval.evaluate import evaluate
 from evp.experiments.batched import Report, Row, figure, markdown_table
+from evp.io.navigation_outputs import georeferenced_trajectory, truth_in_enu
+from evp.io.registry import open_dataset
+from evp.io.trajectory import read_trajectory
+from evp.run_setup import estimate, refine_and_write, resolve_settings
+from evp.sim.generate import generate
+from evp.sim.scenarios import SimOptions
 
 TASK = "evp.experiments.seed000_flights:fly"
 PAPER_RMSE_XY_M = {"circle-indoor": 0.166, "drone-field-loops": 2.8, "drone-square-loops": 1.4}  # seed 000, Section 4
@@ -57,14 +65,6 @@ def _thin(*arrays: np.ndarray) -> list[list[float]]:
 def fly(scenario: str, seed: int, duration_s: float, fps: float, overrides: dict) -> dict:
     """Render one seed, run it as ``evp run`` does, and score both trajectories (RMSE XY and the
     error series, thinned)."""
-    from evp.config import Settings, with_overrides
-    from evp.eval.evaluate import evaluate
-    from evp.io.navigation_outputs import georeferenced_trajectory, truth_in_enu
-    from evp.io.registry import open_dataset
-    from evp.io.trajectory import read_trajectory
-    from evp.run_setup import estimate, refine_and_write, resolve_settings
-    from evp.sim.generate import generate
-    from evp.sim.scenarios import SimOptions
 
     with tempfile.TemporaryDirectory(prefix="evp-seed000-") as scratch:
         data = Path(scratch) / "data"

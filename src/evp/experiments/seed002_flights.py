@@ -18,7 +18,17 @@ from pathlib import Path
 import numpy as np
 
 from evp.batch.jobs import Job, Outcome
+from evp.config import AlignmentSettings, MonitorSettings, Settings
+from evp.eval.statistics import error_statistics
 from evp.experiments.batched import Report, Row, figure, markdown_table
+from evp.fusion.flight import NEAR_TARGET_M, process_flight
+from evp.fusion.gps_alignment import resample
+from evp.io.registry import open_dataset
+from evp.io.trajectory import read_trajectory
+from evp.pipeline import run_dataset
+from evp.run_setup import camera_for, make_estimator, resolve_settings
+from evp.sim.generate import generate
+from evp.sim.scenarios import SimOptions
 
 TASK = "evp.experiments.seed002_flights:fly"
 CLIMB_M_S = 3.0  # the drone-flight scenario's climb and descent rate
@@ -118,16 +128,6 @@ def _thin(*arrays) -> list[list[float]]:
 def fly(flight: str, duration_s: float, altitude_m: float, speed_m_s: float, fps: float, window_s: float, online: bool) -> dict:
     """Render the flight, run the visual odometry (paced when ``online``), align it in both modes
     and score it: statistics against GPS and truth, and thinned series for the figures."""
-    from evp.config import AlignmentSettings, MonitorSettings, Settings
-    from evp.eval.statistics import error_statistics
-    from evp.fusion.flight import NEAR_TARGET_M, process_flight
-    from evp.fusion.gps_alignment import resample
-    from evp.io.registry import open_dataset
-    from evp.io.trajectory import read_trajectory
-    from evp.pipeline import run_dataset
-    from evp.run_setup import camera_for, make_estimator, resolve_settings
-    from evp.sim.generate import generate
-    from evp.sim.scenarios import SimOptions
 
     options = SimOptions(duration_s=duration_s, altitude_m=altitude_m, speed_m_s=speed_m_s, fps=fps, relief=False, seed=ord(flight))
     with tempfile.TemporaryDirectory(prefix="evp-seed002-") as scratch:  # the frames are read as the run goes

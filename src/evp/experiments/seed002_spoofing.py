@@ -20,6 +20,8 @@ import numpy as np
 
 from evp.batch.jobs import Job, Outcome
 from evp.experiments.batched import Report, Row, figure, markdown_table
+from evp.sim.monitor_trials import first, monitor_run
+from evp.sim.sensors import GpsConfig
 
 TASK = "evp.experiments.seed002_spoofing:trial"
 SPOOF_START_S, OUTAGE_START_S, AFTER_S = 150.0, 120.0, 60.0
@@ -41,8 +43,6 @@ def _error_at(errors: list[tuple[float, float]], t: float) -> float | None:
 def trial(kind: str, size: float, seeds: int) -> dict:
     """Every seed of one case: delays and error growth (lists, one value a seed; None where the
     event did not happen)."""
-    from evp.sim.monitor_trials import first, monitor_run
-    from evp.sim.sensors import GpsConfig
 
     delays, before, at_alarm, after, lost, back, restored = [], [], [], [], [], [], []
     for seed in range(seeds):

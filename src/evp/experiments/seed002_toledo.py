@@ -16,7 +16,13 @@ import os
 from pathlib import Path
 
 from evp.batch.jobs import Job, Outcome
+from evp.config import Settings
+from evp.eval.flight_report import flight_summary
 from evp.experiments.batched import Report, Row, figure, markdown_table
+from evp.fusion.flight import process_flight
+from evp.io.registry import open_dataset
+from evp.pipeline import run_dataset
+from evp.run_setup import camera_for, make_estimator, resolve_settings
 
 TASK = "evp.experiments.seed002_toledo:align_survey"
 FOLDER = "aerial_nadir_odm_toledo_fc350"
@@ -34,12 +40,6 @@ def jobs(variant: str | None, quick: bool) -> list[Job]:
 
 def align_survey(dataset: str, align_fraction: float) -> dict:
     """``evp align DATASET --align-fraction F`` in both modes, on one visual track."""
-    from evp.config import Settings
-    from evp.eval.flight_report import flight_summary
-    from evp.fusion.flight import process_flight
-    from evp.io.registry import open_dataset
-    from evp.pipeline import run_dataset
-    from evp.run_setup import camera_for, make_estimator, resolve_settings
 
     data = open_dataset(Path(dataset))
     settings = resolve_settings(Settings(), data)

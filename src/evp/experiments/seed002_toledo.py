@@ -71,7 +71,7 @@ def report(variant: str | None, outcomes: dict[str, Outcome], quick: bool, out: 
         "",
         *markdown_table(["mode", "paper's offline means (m)", "mean (m)", "max", "Q1", "Q3", "IQR", "std", "fixes scored"], lines),
         "",
-        f"Warnings: {'; '.join(sorted({w for m in PAPER_TABLE_II_MEAN_RANGE_M for w in outcome.record[m]['warnings']}))}"
+        f"Warnings: {'; '.join(sorted({w for m in PAPER_TABLE_II_MEAN_RANGE_M for w in outcome.record[m].get('warnings', [])}))}"
         if outcome.ok
         else f"The job failed: {outcome.error}",
     ]

@@ -94,12 +94,12 @@ def run_batch(
         if (stored := _stored(out, job)) is not None:
             outcomes[job.key] = stored
     waiting = [job for job in jobs if job.key not in outcomes]
-    if outcomes:
-        progress(f"{len(outcomes)} of {len(jobs)} jobs already done in {out} (reused); {len(waiting)} to run on {executor.describe()}")
-    else:
-        progress(f"{len(jobs)} jobs on {executor.describe()}")
-    by_key = {job.key: job for job in jobs}
     where = executor.describe()
+    if outcomes:
+        progress(f"{len(outcomes)} of {len(jobs)} jobs already done in {out} (reused); {len(waiting)} to run on {where}")
+    else:
+        progress(f"{len(jobs)} jobs on {where}")
+    by_key = {job.key: job for job in jobs}
     started: dict[str, float] = {}  # key -> when the job was handed to the executor
     computed = [o.wall_s for o in outcomes.values()]  # job times for the estimate of the time left, earlier runs' too
     last_line = clock()

@@ -4,8 +4,8 @@ import pytest
 
 from evp.config import MonitorSettings
 from evp.fusion.gps_monitor import GpsMonitor, GpsTrust
-from evp.sim.sensors import GpsConfig
 from evp.sim.monitor_trials import first, monitor_run
+from evp.sim.sensors import GpsConfig
 
 
 @pytest.mark.parametrize("seed", range(3))

@@ -91,6 +91,7 @@ def _stream(work: Path, name: str, source: Path, settings: dict) -> tuple[dict, 
     data = work / f"{name}-station"
     with running_station(data, "--config", str(config)) as station:
         command = [sys.executable, "-m", "evp.cli", "stream", str(source), "--url", station.url, "--realtime", "--quiet", "--encoding", "jpeg"]
+        command += ["--cafile", str(data / "tls" / "cert.pem")]
         result = subprocess.run([*command, "--out", str(out)], capture_output=True, text=True, timeout=3600)
         if result.returncode != 0:
             raise SystemExit(f"evp stream failed: {result.stderr[-2000:]}")

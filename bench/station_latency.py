@@ -40,8 +40,8 @@ def _circle(folder: Path, duration: float) -> Path:
     return folder
 
 
-def _streams(url: str, source: Path, count: int) -> list[dict]:
-    command = [sys.executable, "-m", "evp.cli", "stream", str(source), "--url", url, "--realtime", "--quiet", "--encoding", "jpeg"]
+def _streams(url: str, source: Path, count: int, cafile: Path) -> list[dict]:
+    command = [sys.executable, "-m", "evp.cli", "stream", str(source), "--url", url, "--realtime", "--quiet", "--encoding", "jpeg", "--cafile", str(cafile)]
     processes = [subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True) for _ in range(count)]
     summaries = []
     for process in processes:
@@ -68,7 +68,7 @@ def _record(estimator: str, count: int, source: Path, work: Path) -> dict:
     config.write_text(f"estimator: {estimator}\n")
     with running_station(work / f"station-{estimator}-{count}", "--config", str(config)) as station:
         time.sleep(1.0)
-        summaries = _streams(station.url, source, count)
+        summaries = _streams(station.url, source, count, station.data / "tls" / "cert.pem")
     answered = [s["poses_received"] / max(1, s["frames_sent"]) for s in summaries]
     p50 = max(s["latency_ms_p50"] for s in summaries)
     p95 = max(s["latency_ms_p95"] for s in summaries)

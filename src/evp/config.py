@@ -124,6 +124,15 @@ class SlamSettings(_Section):
         "", description="bag-of-words vocabulary file for place recognition ('' = the one shipped, trained on EVP's renders; evp vocabulary build)"
     )
     loop_min_matches: int = Field(40, ge=20, description="map point matches that confirm a loop")
+    map: str = Field(
+        "",
+        description="a map saved by an earlier run (its map.npz) to start from: tracking relocalises in it instead of initialising, and a georeferenced map georeferences the run at once ('' = start a new map)",
+    )
+    map_relocalise_timeout_s: float = Field(
+        60.0,
+        gt=0,
+        description="with slam.map: seconds without relocalising in it before SLAM gives up and starts a new map (a vehicle waits on its pad for a minute; a take-off climbs into the mapped altitudes within seconds)",
+    )
     final_bundle_adjustment: bool = Field(
         True,
         description="offline runs: one global bundle adjustment of the whole map before trajectory.tum is written (trajectory_live.tum keeps the live poses)",
@@ -195,6 +204,11 @@ class NavigationSettings(_Section):
     )
     initial_position_sigma_m: float = Field(1.0, gt=0, description="initial position uncertainty (1 sigma, per axis)")
     initial_velocity_sigma_m_s: float = Field(0.5, gt=0)
+    saved_map_velocity_sigma_m_s: float = Field(
+        10.0,
+        gt=0,
+        description="started from a saved map's georeference, the filter's velocity is unknown (zero, this sigma per axis: a multirotor's cruise); the visual poses give it within a second",
+    )
     initial_attitude_sigma_rad: float = Field(0.05, gt=0, description="initial roll/pitch/yaw uncertainty")
     initial_yaw_sigma_rad: float = Field(3.2, gt=0, description="initial heading uncertainty: unknown (about pi) until GPS or a map says")
     initial_gyro_bias_sigma: float = Field(0.01, gt=0, description="rad/s")
@@ -408,6 +422,16 @@ class StationSettings(_Section):
 
     encoding: Literal["jpeg", "png", "raw"] = Field("jpeg", description="image encoding asked of phones")
     jpeg_quality: int = Field(85, ge=1, le=100)
+    min_free_disk_mb: float = Field(
+        256.0,
+        ge=0,
+        description="below this much free space in the data folder the station refuses new recording (storage_full) rather than lose data: 12 s of the fastest stream measured (21 MiB/s), plus room for SQLite's journal",
+    )
+    max_estimator_restarts: int = Field(
+        3,
+        ge=0,
+        description="an estimator process that dies is restarted (its frame in flight answered with estimator_failed); after this many deaths without a pose in between it stays down until the next config",
+    )
     estimate_on_connect: bool = Field(True, description="start estimating as soon as a mobile station is configured (else wait for the operator)")
     resume_window_s: float = Field(
         300.0, gt=0, description="an interrupted session keeps its estimator (and map) this long for a reconnect; later it resumes with a new map"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -15,8 +16,10 @@ from evp.types import CameraModel, Frame, Trajectory
 _NO_IMAGE = np.zeros((1, 1), np.uint8)  # GivenPoses does not look at the images
 
 if TYPE_CHECKING:
+    from evp.fusion.map_georeference import MapGeoreference
     from evp.fusion.navigation_stage import NavigationStage
     from evp.pipeline import RunResult
+    from evp.slam.map import Map
 
 
 def camera_for(dataset: Dataset, settings: Settings) -> CameraModel:
@@ -78,10 +81,30 @@ def make_estimator(camera: CameraModel, settings: Settings, dataset: Dataset | N
         from evp.io.vocabulary_files import load_configured_vocabulary
         from evp.runtime.slam import build_slam
 
-        return build_slam(camera, settings.orb, settings.slam, load_configured_vocabulary(settings.slam.vocabulary))
+        return build_slam(camera, settings.orb, settings.slam, load_configured_vocabulary(settings.slam.vocabulary), saved_map(camera, settings))
     from evp.vo.klt_vo import KltVisualOdometry
 
     return KltVisualOdometry(camera, settings.vo)
+
+
+def saved_map(camera: CameraModel, settings: Settings) -> Map | None:
+    """The map ``slam.map`` names (None when it names none), its points' scale ranges for this
+    camera's ORB pyramid."""
+    if not settings.slam.map:
+        return None
+    from evp.io.map_files import load_map
+    from evp.vision.orb import usable_levels
+
+    return load_map(Path(settings.slam.map), settings.orb.scale_factor ** np.arange(usable_levels(settings.orb, camera)))
+
+
+def saved_map_georeference(settings: Settings) -> MapGeoreference | None:
+    """The georeference of the map ``slam.map`` names (None: no map, or one saved without)."""
+    if not settings.slam.map or settings.estimator not in ("slam", "auto"):
+        return None
+    from evp.io.map_files import read_map_georeference
+
+    return read_map_georeference(Path(settings.slam.map))
 
 
 def ekf_slam_estimator(camera: CameraModel, settings: Settings, dataset: Dataset | None) -> Estimator:
@@ -110,25 +133,31 @@ def navigation_off(dataset: Dataset, settings: Settings) -> str | None:
     return None
 
 
-def navigation_stage(dataset: Dataset, settings: Settings, estimator: Estimator) -> NavigationStage | None:
+def navigation_stage(dataset: Dataset, settings: Settings, estimator: Estimator, in_saved_map: bool | None = None) -> NavigationStage | None:
     """The navigation stage after ``estimator`` (its reset counter marks the visual jumps), or None
-    when :func:`navigation_off` says why not."""
+    when :func:`navigation_off` says why not. While the estimator's poses are in the saved map
+    ``slam.map`` names (``in_saved_map``; None: as the estimator says) the stage gets the map's
+    georeference."""
+    if in_saved_map is None:
+        in_saved_map = bool(getattr(estimator, "in_saved_map", False))
     if navigation_off(dataset, settings) is not None:
         return None
     from evp.fusion.navigation_stage import NavigationStage
 
-    return NavigationStage(dataset.T_body_cam, settings.navigation, lambda: estimator.reset_counter, settings.gps_monitor)
+    georeference = saved_map_georeference(settings) if in_saved_map else None
+    return NavigationStage(dataset.T_body_cam, settings.navigation, lambda: estimator.reset_counter, settings.gps_monitor, map_georeference=georeference)
 
 
-def navigation_on_refined(dataset: Dataset, settings: Settings, refined: Trajectory) -> tuple[RunResult, NavigationStage] | None:
+def navigation_on_refined(dataset: Dataset, settings: Settings, refined: Trajectory, in_saved_map: bool = False) -> tuple[RunResult, NavigationStage] | None:
     """A fresh navigation stage run over the estimator's refined trajectory (one map, after the
     final bundle adjustment and every loop correction) and the dataset's telemetry: the filter
     then fuses the poses the whole run could give, not the ones tracking had at the time (on
-    EuRoC MH01 SE3 ATE 6.6 mm against 10.4 mm live). None when no stage runs on ``dataset``."""
+    EuRoC MH01 SE3 ATE 6.6 mm against 10.4 mm live). None when no stage runs on ``dataset``.
+    ``in_saved_map``: the trajectory is in the saved map ``slam.map`` names (SLAM never left it)."""
     from evp.pipeline import run_frames
 
     poses = GivenPoses(refined.timestamps, refined.poses)
-    stage = navigation_stage(dataset, settings, poses)
+    stage = navigation_stage(dataset, settings, poses, in_saved_map)
     if stage is None:
         return None
     frames = (Frame(float(t), _NO_IMAGE, i) for i, t in enumerate(dataset.frame_times))
@@ -137,20 +166,21 @@ def navigation_on_refined(dataset: Dataset, settings: Settings, refined: Traject
 
 def estimate(
     dataset: Dataset, settings: Settings, advance=lambda frames: None, realtime_speed: float | None = None
-) -> tuple[RunResult, NavigationStage | None]:
+) -> tuple[RunResult, NavigationStage | None, Estimator]:
     """What ``evp run`` computes on ``dataset`` with concrete ``settings`` (:func:`resolve_settings`):
     the estimator and its navigation stage over every frame (``realtime_speed``: paced as the base
-    station would be, dropping frames; a real-time replay has no spare time for the reference ORB)."""
+    station would be, dropping frames; a real-time replay has no spare time for the reference ORB).
+    Returns the run, the stage and the estimator (:func:`refine_and_write` finishes with them)."""
     from evp.pipeline import run_dataset
 
     estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
     navigation = navigation_stage(dataset, settings, estimator)
     reference_orb = None if realtime_speed is not None else settings.orb.n_features
     result = run_dataset(dataset, estimator, advance, reference_orb, realtime_speed, stages=[navigation] if navigation is not None else [])
-    return result, navigation
+    return result, navigation, estimator
 
 
-def refine_and_write(result: RunResult, navigation: NavigationStage | None, dataset: Dataset, settings: Settings, out) -> dict:
+def refine_and_write(result: RunResult, navigation: NavigationStage | None, estimator: Estimator, dataset: Dataset, settings: Settings, out) -> dict:
     """The end of ``evp run``: the refinement after the last frame (a survey adjustment or a global
     bundle adjustment; seconds), the navigation stage again on the refined trajectory when the
     settings ask for it, and the outputs in ``out``; returns the metrics written."""
@@ -159,5 +189,5 @@ def refine_and_write(result: RunResult, navigation: NavigationStage | None, data
     result.final_trajectory()
     refined_navigation = None
     if navigation is not None and settings.navigation.refine_offline and result.refined is not None and len(result.refined) >= 2:
-        refined_navigation = navigation_on_refined(dataset, settings, result.refined)
+        refined_navigation = navigation_on_refined(dataset, settings, result.refined, bool(getattr(estimator, "in_saved_map", False)))
     return write_outputs(result, dataset, settings, out, navigation, refined_navigation)

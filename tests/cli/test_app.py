@@ -34,6 +34,8 @@ def test_usage_errors_exit_2(tmp_path):
     bad_settings = evp("run", SAMPLE, "--out", tmp_path / "o", "--config", config)
     assert bad_settings.returncode == ExitCode.USAGE and "orb.n_features" in bad_settings.stderr
     assert evp("camera", "no_such_profile").returncode == ExitCode.USAGE
+    no_map = evp("run", SAMPLE, "--out", tmp_path / "o", "--map", tmp_path / "missing.npz")
+    assert no_map.returncode == ExitCode.USAGE and "missing.npz: no such file" in no_map.stderr
 
 
 def test_data_errors_exit_3(tmp_path):
@@ -41,6 +43,10 @@ def test_data_errors_exit_3(tmp_path):
     broken.write_text("0 1 2 3 not-a-number 0 0 1\n")
     result = evp("convert", broken, tmp_path / "out.tum")
     assert result.returncode == ExitCode.DATA and str(broken) in result.stderr
+    not_a_map = tmp_path / "map.npz"
+    not_a_map.write_text("not a map")
+    result = evp("run", SAMPLE, "--out", tmp_path / "o", "--map", not_a_map)
+    assert result.returncode == ExitCode.DATA and "not an EVP map file" in result.stderr
 
 
 def test_link_errors_exit_4(tmp_path):

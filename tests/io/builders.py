@@ -6,6 +6,8 @@ Tests copy one, break one thing, and check that the reader names the problem pre
 from __future__ import annotations
 
 import shutil
+import struct
+import zlib
 from pathlib import Path
 
 import cv2
@@ -116,3 +118,9 @@ def make_video(root: Path, count: int = 12, fps: float = 10.0) -> Path:
 
 def noise_image(seed: int, shape=(48, 64)) -> np.ndarray:
     return np.random.default_rng(seed).integers(0, 255, shape, dtype=np.uint8)
+
+
+def png_header_only(width: int, height: int) -> bytes:
+    """A PNG's signature and IHDR chunk (what a header check reads), no image data."""
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + struct.pack(">I", len(ihdr)) + b"IHDR" + ihdr + struct.pack(">I", zlib.crc32(b"IHDR" + ihdr))

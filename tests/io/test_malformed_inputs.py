@@ -2,9 +2,11 @@
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from evp.errors import CalibrationError, DatasetError, TrajectoryFormatError, UnknownFormatError
+from evp.io.dataset import load_image
 from evp.io.registry import detect_reader, open_dataset
 from evp.io.telemetry_csv import read_telemetry_csv
 from tests.io import builders
@@ -178,3 +180,35 @@ def test_unknown_paths(tmp_path):
         open_dataset(tmp_path / "notes")
     with pytest.raises(UnknownFormatError, match="unknown dataset format"):
         open_dataset(tmp_path / "notes", "lidar-scans")
+
+
+def test_hostile_offline_input_is_one_specific_error_line(tmp_path):
+    """Issue 34: a binary images.txt and a random .bag gave tracebacks; all-NaN timestamps were
+    accepted and written as nan; a 20000x20000 PNG was decoded whole before it was skipped."""
+    from tests.cli.conftest import evp
+
+    binary = builders.make_image_folder(tmp_path / "binary")
+    (binary / "images.txt").write_bytes(bytes(range(256)) * 8)
+    with pytest.raises(DatasetError, match="not a text file"):
+        open_dataset(binary)
+    bag = tmp_path / "random.bag"
+    bag.write_bytes(np.random.default_rng(3).bytes(5000))
+    with pytest.raises(DatasetError, match="cannot read bag: not a ROS 1 bag"):
+        open_dataset(bag)
+    for path in (binary, bag):
+        result = evp("run", path, "--out", tmp_path / "out")
+        assert result.returncode == 3 and "Traceback" not in result.stderr, result.stderr
+        assert len(result.stderr.strip().splitlines()) == 1 and str(path.name) in result.stderr
+
+    nan = builders.make_image_folder(tmp_path / "nan")
+    names = [line.split()[1] for line in (nan / "images.txt").read_text().splitlines()]
+    (nan / "images.txt").write_text("".join(f"nan {name}\n" for name in names))
+    with pytest.raises(DatasetError, match="timestamp nan is not a finite number") as info:
+        open_dataset(nan)
+    assert info.value.line == 1
+
+    huge = builders.make_image_folder(tmp_path / "huge")
+    first = sorted((huge / "images").iterdir())[0]
+    first.write_bytes(builders.png_header_only(20000, 20000))
+    with pytest.raises(DatasetError, match="20000x20000 pixels: more than 134 Mpx, not decoded"):
+        load_image(first)

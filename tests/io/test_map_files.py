@@ -1,14 +1,16 @@
-"""The map file (``map.npz``): a round trip, bounded reading however many keyframes, and a clear
-error for a file that is not a map."""
+"""The map file (``map.npz``): a round trip (the georeference too), bounded reading however many
+keyframes, and a clear error for a file that is not a map."""
 
 import json
 from collections import Counter
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from evp.errors import EvpError
-from evp.io.map_files import load_map, save_map
+from evp.fusion.map_georeference import MapGeoreference
+from evp.io.map_files import load_map, read_map_georeference, save_map
 from evp.slam.map import Map
 from evp.vision.orb import Features
 from evp.vision.vocabulary import BowVector
@@ -105,3 +107,44 @@ def test_a_map_cut_short_is_a_clear_error(tmp_path):
     (tmp_path / "cut.npz").write_bytes(whole[: len(whole) // 2])
     with pytest.raises(EvpError, match="not an EVP map file"):
         load_map(tmp_path / "cut.npz", SCALES)
+
+
+def _georeference() -> MapGeoreference:
+    R = Rotation.from_euler("zyx", [40.0, 2.0, 179.0], degrees=True).as_matrix()
+    return MapGeoreference(3.05, R, np.array([12.5, -3.0, 61.0]), (43.7238, 10.3966, 4.0), 1.5, 0.012, 0.012, 84, 0.41)
+
+
+def test_the_georeference_comes_back_with_the_map(tmp_path):
+    """A georeferenced run's map keeps its similarity to ENU and the ENU origin; a map saved
+    without one (or of version 2, before maps had one) reads back as not georeferenced."""
+    georeference = _georeference()
+    save_map(_map(12, 50, np.random.default_rng(0)), tmp_path / "map.npz", georeference)
+    loaded = read_map_georeference(tmp_path / "map.npz")
+    assert loaded.scale == georeference.scale and loaded.origin == georeference.origin
+    assert np.array_equal(loaded.R, georeference.R) and np.array_equal(loaded.t, georeference.t)
+    assert (loaded.translation_sigma_m, loaded.rotation_sigma_rad, loaded.log_scale_sigma) == (1.5, 0.012, 0.012)
+    assert (loaded.keyframes, loaded.residual_m) == (84, 0.41)
+    assert len(load_map(tmp_path / "map.npz", SCALES).keyframes) == 12
+    save_map(_map(3, 10, np.random.default_rng(3)), tmp_path / "plain.npz")
+    assert read_map_georeference(tmp_path / "plain.npz") is None
+    _rewrite_meta(tmp_path / "plain.npz", tmp_path / "v2.npz", version=2, georeference=None)
+    assert read_map_georeference(tmp_path / "v2.npz") is None and len(load_map(tmp_path / "v2.npz", SCALES).keyframes) == 3
+
+
+@pytest.mark.parametrize(
+    "change",
+    [{"scale": -1.0}, {"R": [[2, 0, 0], [0, 1, 0], [0, 0, 1]]}, {"origin": [43.7, 10.4]}, {"t": [0, float("nan"), 0]}],
+    ids=["negative scale", "not a rotation", "origin without altitude", "NaN"],
+)
+def test_a_malformed_georeference_is_a_clear_error(tmp_path, change):
+    save_map(_map(3, 10, np.random.default_rng(3)), tmp_path / "map.npz", _georeference())
+    _rewrite_meta(tmp_path / "map.npz", tmp_path / "bad.npz", georeference={**_georeference().to_json(), **change})
+    with pytest.raises(EvpError, match="georeference is malformed"):
+        read_map_georeference(tmp_path / "bad.npz")
+
+
+def _rewrite_meta(source, target, **changes) -> None:
+    with np.load(source) as archive:
+        arrays = {name: archive[name] for name in archive.files}
+    arrays["meta"] = np.array(json.dumps({**json.loads(str(arrays["meta"])), **changes}))
+    np.savez(target, **arrays)

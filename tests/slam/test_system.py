@@ -150,6 +150,48 @@ def test_relocalises_after_a_forced_loss_without_resetting_the_map(circle):
     assert distance < 0.02 and angle < 1.0  # the same pose as the first time this image was seen
 
 
+def test_a_run_started_from_a_saved_map_relocalises_in_it_without_initialising(circle, tmp_path):
+    """``slam.map``: the next run loads the map and relocalises (no two-view start), its poses in
+    the saved map's frame: the place seen in both runs gets the pose the first run gave it."""
+    dataset, frames = circle
+    slam = _system(dataset)
+    first = [slam.feed(frame) for frame in frames[:90]]
+    slam.finish()
+    save_map(slam.map, tmp_path / "map.npz")
+    saved = load_map(tmp_path / "map.npz", slam.extractor.scale_factors)
+    keyframes, next_id = len(saved.keyframes), saved.id_counters[0]
+    again = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline"), vocabulary=VOCABULARY, initial_map=saved)
+    assert again.state == TrackingState.LOST and again.in_saved_map
+    estimates = [again.feed(Frame(frame.timestamp + 100.0, frame.image, k)) for k, frame in enumerate(frames[60:80])]
+    states = [e.tracking_state for e in estimates]
+    assert states[0] == TrackingState.RELOCALIZED and again.saved_map.relocalised_at == frames[60].timestamp + 100.0
+    assert TrackingState.NOT_INITIALIZED not in states and again.reset_counter == 1
+    assert min(again.map.keyframes) == 0 and len(again.map.keyframes) >= keyframes  # the saved map, kept
+    for before, after in zip(first[60:80], estimates, strict=True):
+        assert np.linalg.norm(before.T_world_cam[:3, 3] - after.T_world_cam[:3, 3]) < 0.02
+    assert again.first_own_keyframe == next_id and again.report()["saved_map"]["fell_back_at"] is None
+
+
+def test_a_saved_map_that_is_never_found_gives_way_to_a_new_map(circle, tmp_path):
+    """Frames of a place the saved map does not hold (here: blank, then the circle's start, of
+    which the map below has no keyframe): after ``map_relocalise_timeout_s`` SLAM drops the map,
+    says so, and initialises a new one."""
+    dataset, frames = circle
+    slam = _system(dataset)
+    for frame in frames[:40]:
+        slam.feed(frame)
+    slam.finish()
+    blank = np.full_like(frames[0].image, 128)
+    settings = SlamSettings(mapping="inline", map_relocalise_timeout_s=0.5)
+    again = SlamSystem(dataset.camera, OrbSettings(n_features=1000), settings, vocabulary=VOCABULARY, initial_map=slam.map)
+    states = [again.feed(Frame(0.1 * k, blank, k)).tracking_state for k in range(8)]
+    assert states[:5] == [TrackingState.LOST] * 5 and states[-1] == TrackingState.NOT_INITIALIZED
+    assert again.saved_map.fell_back_at == pytest.approx(0.5) and not again.in_saved_map
+    assert not again.map.keyframes and again.reset_counter == 1
+    later = [again.feed(Frame(10.0 + frame.timestamp, frame.image, 8 + k)) for k, frame in enumerate(frames)]
+    assert TrackingState.OK in [e.tracking_state for e in later]  # a new map of its own
+
+
 def _in_view(camera, T_world_cam: np.ndarray, point: np.ndarray) -> bool:
     p = se3_inverse(T_world_cam)[:3, :3] @ point + se3_inverse(T_world_cam)[:3, 3]
     u, v = camera.fx * p[0] / p[2] + camera.cx, camera.fy * p[1] / p[2] + camera.cy

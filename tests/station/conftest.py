@@ -159,6 +159,23 @@ def committed(check: Callable[[], bool], what: str, timeout: float = 20) -> None
         time.sleep(0.02)
 
 
+def indexed_messages(path) -> list[tuple[str, int, object]]:
+    """(topic, log time, decoded message) of a finished recording, read with the ``mcap`` library's
+    indexed reader: the file must be chunked, zstd-compressed and indexed (what Foxglove seeks in)."""
+    from mcap.reader import make_reader
+
+    from evp.io.ros_messages import ROS2
+
+    with Path(path).open("rb") as handle:
+        reader = make_reader(handle)
+        summary = reader.get_summary()
+        assert summary is not None and summary.chunk_indexes, f"{path}: no chunk index"
+        assert all(c.compression == "zstd" and c.message_index_offsets for c in summary.chunk_indexes), f"{path}: chunks not compressed or indexed"
+        messages = [(channel.topic, message.log_time, ROS2.deserialize_cdr(message.data, schema.name)) for schema, channel, message in reader.iter_messages()]
+    assert len(messages) == summary.statistics.message_count
+    return messages
+
+
 def run_stream(*args: str, timeout: float = 300) -> dict:
     """``evp stream`` as a user runs it; returns its last line (the JSON summary)."""
     result = subprocess.run([sys.executable, "-m", "evp.cli", "stream", *args], capture_output=True, text=True, timeout=timeout)

@@ -20,10 +20,10 @@ from evp.config import Settings
 from evp.io.registry import open_dataset
 from evp.pipeline import run_dataset
 from evp.run_setup import make_estimator
-from evp.station.recording import decoded_messages, has_summary
+from evp.station.recording import has_summary
 from evp.station.store import SessionStore
 from tests.conftest import SAMPLE
-from tests.station.conftest import OperatorFeed, free_port, run_stream, running_station
+from tests.station.conftest import OperatorFeed, free_port, indexed_messages, run_stream, running_station
 
 os.environ.setdefault("MAVLINK20", "1")
 
@@ -56,7 +56,8 @@ def test_sample_streamed_to_the_station_matches_evp_run(tmp_path, station_data):
     listener = MavlinkListener(mavlink_port)
     listener.start()
     with running_station(station_data, "--mavlink", f"udpout:127.0.0.1:{mavlink_port}") as station, OperatorFeed(station) as feed:
-        summary = run_stream(str(SAMPLE), "--url", station.url, "--quiet", "--out", str(tmp_path / "stream"))
+        cafile = str(station_data / "tls" / "cert.pem")
+        summary = run_stream(str(SAMPLE), "--url", station.url, "--cafile", cafile, "--quiet", "--out", str(tmp_path / "stream"))
         feed.event("ended", summary["session_id"])
     listener.running = False
     listener.join()
@@ -82,8 +83,9 @@ def test_sample_streamed_to_the_station_matches_evp_run(tmp_path, station_data):
         codes = [e["code"] for e in store.rows("events", session["id"])]
         assert codes[0] == "connected" and "estimator_ready" in codes and codes[-1] == "ended"
         assert has_summary(session["mcap_path"])
-        topics = Counter(topic for topic, _, _ in decoded_messages(session["mcap_path"]))
+        topics = Counter(topic for topic, _, _ in indexed_messages(session["mcap_path"]))
         assert topics["/camera/image/compressed"] == frames and topics["/evp/pose"] == frames and topics["/camera/camera_info"] == 1
+        assert topics["/tf"] == frames  # the camera's pose, where Foxglove's 3-D panel places it
 
         replay = subprocess.run(
             [sys.executable, "-m", "evp.cli", "replay", summary["session_id"], "--data", str(station_data), "--out", str(tmp_path / "replay")],

@@ -16,11 +16,11 @@ import websockets
 
 from evp.io.registry import open_dataset
 from evp.station.protocol import PROTOCOL_VERSION, Config, Hello, ImageMessage, decode_text, encode, encode_image
-from evp.station.recording import decoded_messages, has_summary
+from evp.station.recording import has_summary
 from evp.station.store import SessionStore
 from evp.types import CameraModel
 from tests.conftest import SAMPLE
-from tests.station.conftest import OperatorFeed, committed, insecure_tls, running_station
+from tests.station.conftest import OperatorFeed, committed, indexed_messages, insecure_tls, running_station
 
 TOKEN = "s3cret"
 
@@ -115,7 +115,7 @@ def test_bad_messages_get_specific_errors_and_the_session_goes_on(station_data, 
         await connection.send(corrupt.pack())
         error, _ = await _until(connection, "error")
         assert (error.code, error.seq) in (("corrupt_image", 1),)
-        await connection.send(encode_image(images[2].image, 1, images[2].timestamp, "png").pack())  # seq repeats
+        await connection.send(encode_image(images[2].image, 0, images[2].timestamp, "png").pack())  # seq repeats (1 was refused: not taken)
         error, _ = await _until(connection, "error")
         assert error.code == "out_of_order"
         await connection.send(encode_image(images[2].image[:100], 3, images[2].timestamp, "png").pack())
@@ -142,10 +142,11 @@ def test_bad_messages_get_specific_errors_and_the_session_goes_on(station_data, 
         refused = [e["code"] for e in store.recent_events(100) if e["session_id"] is None]
         assert {"bad_token", "bad_version", "not_ready", "unknown_session"} <= set(refused)
         rows = store.rows("frames", session_id)
-        assert len(rows) == 5  # every image that parsed is recorded, estimated or not
-        assert [r["estimated"] for r in sorted(rows, key=lambda r: r["id"])].count(True) == 2
+        assert [r["seq"] for r in rows] == [0, 4] and all(r["estimated"] for r in rows)  # refused frames are not recorded
+        mcap = store.session(session_id)["mcap_path"]
     finally:
         store.close()
+    assert sum(1 for topic, _, _ in indexed_messages(mcap) if topic.startswith("/camera/image")) == 2
 
 
 def test_killed_client_leaves_an_interrupted_session_that_resumes(station_data, frames):
@@ -177,7 +178,7 @@ def test_killed_client_leaves_an_interrupted_session_that_resumes(station_data, 
         assert session["status"] == "ended"
         assert len(store.rows("frames", session_id)) == 9 and len(store.rows("poses", session_id)) == 9
         assert "resumed" in [e["code"] for e in store.rows("events", session_id)]
-        images_recorded = sum(1 for topic, _, _ in decoded_messages(session["mcap_path"]) if topic.startswith("/camera/image"))
+        images_recorded = sum(1 for topic, _, _ in indexed_messages(session["mcap_path"]) if topic.startswith("/camera/image"))
         assert images_recorded == 9
     finally:
         store.close()
@@ -207,7 +208,7 @@ def test_killed_station_loses_nothing_it_recorded(station_data, frames):
         assert session["status"] == "interrupted"
         assert len(store.rows("frames", session_id)) == 6 and len(store.rows("poses", session_id)) == 6
         assert has_summary(mcap)
-        assert sum(1 for topic, _, _ in decoded_messages(mcap) if topic == "/camera/image/compressed") == 6
+        assert sum(1 for topic, _, _ in indexed_messages(mcap) if topic == "/camera/image/compressed") == 6
         assert "recording_repaired" in [e["code"] for e in store.rows("events", session_id)]
     finally:
         store.close()
@@ -244,7 +245,7 @@ def test_unresumed_session_is_released_and_resumes_from_disk_with_a_new_map(tmp_
         assert session["status"] == "ended"
         assert len(store.rows("frames", session_id)) == 6 and len(store.rows("poses", session_id)) == 6
         assert [r["source"] for r in store.rows("settings", session_id)].count("server") == 2  # a new estimator after the release
-        assert sum(1 for topic, _, _ in decoded_messages(session["mcap_path"]) if topic.startswith("/camera/image")) == 6
+        assert sum(1 for topic, _, _ in indexed_messages(session["mcap_path"]) if topic.startswith("/camera/image")) == 6
     finally:
         store.close()
 
@@ -291,5 +292,5 @@ def test_bad_telemetry_gets_specific_events_and_the_session_and_recording_go_on(
         session = store.session(session_id)
     finally:
         store.close()
-    topics = [topic for topic, _, _ in decoded_messages(session["mcap_path"], {"/imu", "/gps/fix"})]
+    topics = [topic for topic, _, _ in indexed_messages(session["mcap_path"])]
     assert topics.count("/imu") == 22 and topics.count("/gps/fix") == 1

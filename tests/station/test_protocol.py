@@ -26,6 +26,7 @@ from evp.station.protocol import (
     encode_image,
     image_pixels,
 )
+from tests.io.builders import png_header_only
 
 
 def test_messages_round_trip():
@@ -67,7 +68,13 @@ def test_images_round_trip(encoding, channels):
         ('{"type": "telemetry", "kind": "imu", "timestamp": 1, "gyro_rad_s": [0, 0], "accel_m_s2": [0, 0, 9.8]}', "malformed", "gyro_rad_s"),
         ('{"type": "telemetry", "kind": "gps", "timestamp": 1, "latitude_deg": 91, "longitude_deg": 0, "altitude_m": 0}', "malformed", "latitude_deg"),
         ('{"type": "telemetry", "kind": "baro", "timestamp": NaN, "pressure_pa": 1e5}', "malformed", "not JSON"),
-        ('{"type": "config", "camera": {"width": 640, "height": 380, "fx": -1, "fy": 1, "cx": 0, "cy": 0}}', "malformed", "focal lengths must be positive"),
+        ('{"type": "config", "camera": {"width": 640, "height": 380, "fx": -1, "fy": 1, "cx": 0, "cy": 0}}', "bad_camera", "focal lengths must be positive"),
+        ('{"type": "config", "camera": {"width": 640, "height": 380, "fx": 1e300, "fy": 500, "cx": 320, "cy": 190}}', "bad_camera", "fx=1e+300"),
+        ('{"type": "config", "camera": {"width": 640, "height": 380, "fx": 500, "fy": 500, "cx": 9000, "cy": 190}}', "bad_camera", "principal point"),
+        ('{"type": "config", "camera": {"width": 640, "height": 380, "fx": 500, "fy": 500, "cx": 320, "cy": 190, "k1": 1e9}}', "bad_camera", "k1"),
+        ('{"type": "telemetry", "kind": "imu", "timestamp": 1.7e12, "gyro_rad_s": [0, 0, 0], "accel_m_s2": [0, 0, 9.8]}', "bad_timestamp", "milliseconds"),
+        ('{"type": "telemetry", "kind": "gps", "timestamp": -1}', "bad_timestamp", "greater than or equal to 0"),
+        ('{"type": "telemetry", "kind": "range", "timestamp": 1e400, "distance_m": 1}', "bad_timestamp", "finite"),
         ('{"type": "enable", "enabled": "maybe"}', "malformed", "enabled"),
         ("[" * 5000 + "]" * 5000, "malformed", ""),
         (json.dumps({"type": "log", "text": "x" * (MAX_TEXT_BYTES + 1)}), "oversized", "limit"),
@@ -99,7 +106,11 @@ def _frame(**overrides) -> bytes:
         (_frame(version=9), "bad_version"),
         (_frame(encoding=77), "unknown_type"),
         (_frame(width=0), "malformed"),
-        (_frame(timestamp=float("inf")), "malformed"),
+        (_frame(timestamp=float("inf")), "bad_timestamp"),
+        (_frame(timestamp=float("nan")), "bad_timestamp"),
+        (_frame(timestamp=-0.5), "bad_timestamp"),
+        (_frame(timestamp=2.0**31), "bad_timestamp"),  # a phone sending milliseconds: 1.7e12
+        (_frame(timestamp=1.7e12), "bad_timestamp"),
         (_frame(length=1000), "malformed"),
         (_frame(encoding=3, payload=b"\x00" * 7), "malformed"),  # gray8 4x2 needs 8 bytes
     ],
@@ -112,13 +123,34 @@ def test_bad_image_frames_get_a_specific_error(data, code):
 
 def test_corrupt_and_wrong_size_jpeg_are_corrupt_image():
     corrupt = decode_image(_frame())
-    with pytest.raises(ProtocolError, match="does not decode") as info:
+    with pytest.raises(ProtocolError, match="header is cut off or malformed") as info:
         image_pixels(corrupt)
     assert info.value.code == "corrupt_image" and info.value.seq == 1
     real = encode_image(np.full((20, 30), 128, np.uint8), 2, 1.0, "jpeg")
     lying = ImageMessage(real.seq, real.timestamp, "jpeg", 31, 20, real.payload)
-    with pytest.raises(ProtocolError, match="header says 31x20"):
+    with pytest.raises(ProtocolError, match="the frame says 31x20"):
         image_pixels(lying)
+    body = real.payload[:200] + bytes(len(real.payload) - 200)  # a valid header, a body that does not decode
+    with pytest.raises(ProtocolError, match="does not decode|decodes to"):
+        image_pixels(ImageMessage(3, 1.0, "jpeg", 30, 20, body))
+
+
+def test_payloads_that_are_not_what_they_claim_are_refused_from_their_header():
+    """Finding 5: a float64 TIFF sent as "png" killed the estimator; a 20000x20000 PNG is
+    refused from its header, never decoded; a 16-bit PNG is not what the estimators take."""
+    import cv2
+
+    ok, tiff = cv2.imencode(".tiff", np.random.default_rng(0).random((20, 30)).astype(np.float32))
+    assert ok
+    with pytest.raises(ProtocolError, match="neither JPEG nor PNG, the frame says png") as info:
+        image_pixels(ImageMessage(4, 1.0, "png", 30, 20, tiff.tobytes()))
+    assert info.value.code == "corrupt_image"
+    huge = png_header_only(20000, 20000)
+    with pytest.raises(ProtocolError, match="png is 20000x20000, the frame says 30x20"):
+        image_pixels(ImageMessage(5, 1.0, "png", 30, 20, huge))
+    ok, deep = cv2.imencode(".png", np.full((20, 30), 1000, np.uint16))
+    with pytest.raises(ProtocolError, match="16-bit png"):
+        image_pixels(ImageMessage(6, 1.0, "png", 30, 20, deep.tobytes()))
 
 
 json_values = st.recursive(
@@ -145,7 +177,7 @@ def test_fuzzed_text_raises_only_protocol_errors(text):
     try:
         decode_text(text)
     except ProtocolError as exc:
-        assert exc.code in ("malformed", "unknown_type", "oversized")
+        assert exc.code in ("malformed", "unknown_type", "oversized", "bad_timestamp", "bad_camera")
 
 
 @settings(max_examples=300, deadline=None)
@@ -183,7 +215,7 @@ def test_config_carries_the_one_camera_model_and_orb_settings():
         fields = {"width": 640, "height": 380, "fx": 494.1, "fy": 494.2, "cx": 319.9, "cy": 173.6, **bad}
         with pytest.raises(ProtocolError, match=words) as info:
             decode_text(json.dumps({"type": "config", "camera": fields}).replace("Infinity", "1e999"))
-        assert info.value.code == "malformed"
+        assert info.value.code == "bad_camera"
 
 
 def test_a_fisheye_config_dumps_to_json_and_back():

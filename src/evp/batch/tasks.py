@@ -22,9 +22,9 @@ def run_dataset(dataset: str, overrides: dict, config: str | None = None, out: s
     if data.num_frames == 0:
         raise DatasetError(Path(dataset), f"no camera frames to run on ({data.format})")
     settings = resolve_settings(with_overrides(load_settings(config), overrides), data)
-    result, navigation = estimate(data, settings)
+    result, navigation, estimator = estimate(data, settings)
     with tempfile.TemporaryDirectory(prefix="evp-sweep-") as scratch:
-        metrics = refine_and_write(result, navigation, data, settings, Path(out) if out else Path(scratch))
+        metrics = refine_and_write(result, navigation, estimator, data, settings, Path(out) if out else Path(scratch))
     record = {name: metrics[name] for name in METRICS if name in metrics}
     navigation_metrics = metrics.get("navigation", {})
     if "ate_se3_rmse_m" in navigation_metrics:

@@ -40,6 +40,11 @@ def run(
     ),
     speed: float = typer.Option(1.0, "--speed", min=0.01, help="With --realtime: play the recording this many times faster."),
     estimator_name: str | None = typer.Option(None, "--estimator", help="Override the settings' estimator: auto, slam, klt-vo, nadir or ekf-slam."),
+    saved_map: Path | None = typer.Option(
+        None,
+        "--map",
+        help="Start SLAM from a map an earlier run saved (its map.npz; sets slam.map): it relocalises there, and a georeferenced map georeferences this run at once.",
+    ),
 ) -> None:
     """Estimate the camera trajectory of a dataset and evaluate it when ground truth exists."""
     from rich.console import Console
@@ -52,6 +57,10 @@ def run(
     settings = load_settings(config)
     if estimator_name is not None:
         settings = with_estimator(settings, estimator_name)
+    if saved_map is not None:
+        if not saved_map.is_file():
+            raise UsageError(f"--map {saved_map}: no such file (give the map.npz an earlier evp run wrote)")
+        settings = settings.model_copy(update={"slam": settings.slam.model_copy(update={"map": str(saved_map)})})
     dataset = open_dataset(dataset_path, fmt)
     if dataset.num_frames == 0:
         raise DatasetError(dataset_path, f"no camera frames to run on ({dataset.format})")
@@ -61,9 +70,10 @@ def run(
         typer.echo(f"warning: the IMU is not fused: {unfused}", err=True)
     with Progress(transient=True) as progress:
         task = progress.add_task(f"{dataset.name}", total=dataset.num_frames)
-        result, navigation = estimate(dataset, settings, lambda n: progress.advance(task, n), speed if realtime else None)
+        result, navigation, estimator = estimate(dataset, settings, lambda n: progress.advance(task, n), speed if realtime else None)
     with Console(stderr=True).status(f"{dataset.name}: refining the trajectory (end of run)"):
-        metrics = refine_and_write(result, navigation, dataset, settings, out)
+        metrics = refine_and_write(result, navigation, estimator, dataset, settings, out)
+    echo_saved_map(metrics.get("saved_map"))
     if metrics["tracked_frames"] == 0:
         frames = f"{dataset.num_frames} frame" + ("s" if dataset.num_frames != 1 else "")
         raise InitialisationError(
@@ -85,6 +95,20 @@ def run(
     for reason in metrics["skipped"]:
         typer.echo(f"skipped: {reason}", err=True)
     typer.echo(f"results in {out}")
+
+
+def echo_saved_map(saved: dict | None) -> None:
+    """What became of the saved map the run started from (``slam.map``), when it had one."""
+    if saved is None:
+        return
+    if saved["fell_back_at"] is not None:
+        typer.echo(
+            f"warning: not relocalised in the saved map ({saved['keyframes']} keyframes); a new map was started at {saved['fell_back_at']:.3f} s", err=True
+        )
+    elif saved["relocalised_at"] is None:
+        typer.echo(f"warning: never relocalised in the saved map ({saved['keyframes']} keyframes)", err=True)
+    else:
+        typer.echo(f"relocalised in the saved map ({saved['keyframes']} keyframes) at {saved['relocalised_at']:.3f} s")
 
 
 def with_estimator(settings, name: str):

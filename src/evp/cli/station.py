@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from evp.errors import DataError, UsageError
+from evp.errors import DataError, ExitCode, UsageError
 
 app = typer.Typer()
 
@@ -31,7 +31,7 @@ def serve(
     run_station(host, port, data, load_settings(config), db, mavlink, token, not no_tls, typer.echo)
 
 
-def run_stream(source_spec, url, realtime, encoding, jpeg_quality, camera, max_frames, token, resume, cafile, fingerprint, out, quiet, echo) -> dict:
+def run_stream(source_spec, url, realtime, encoding, jpeg_quality, camera, max_frames, token, resume, cafile, fingerprint, insecure, out, quiet, echo) -> dict:
     """Stream a source to a station; the poses received are echoed (unless quiet) and written to
     ``out`` (poses.tum: the tracked ones; answers.jsonl: every answer with its fields and its
     frame-sent to answer-received latency; summary.json) when given. Returns the summary."""
@@ -53,7 +53,7 @@ def run_stream(source_spec, url, realtime, encoding, jpeg_quality, camera, max_f
             t = " ".join(f"{v:.4f}" for v in pose.t)
             echo(f"pose {pose.seq} t={pose.timestamp:.3f} {pose.state} xyz=({t}) quality={pose.quality}")
 
-    client = StreamClient(url, token=token, cafile=cafile, fingerprint=fingerprint, on_pose=show, log=lambda text: echo(text, err=True))
+    client = StreamClient(url, token=token, cafile=cafile, fingerprint=fingerprint, insecure=insecure, on_pose=show, log=lambda text: echo(text, err=True))
     report = asyncio.run(client.run(source, realtime, encoding, jpeg_quality, resume))
     summary = report.summary()
     if out is not None:
@@ -77,14 +77,24 @@ def stream(
     max_frames: int | None = typer.Option(None, "--max-frames", min=1, help="Stop after this many frames."),
     token: str = typer.Option("", "--token", envvar="EVP_TOKEN", help="The station's token, if it has one."),
     resume: str | None = typer.Option(None, "--resume", help="Continue this session (after a dropped link)."),
-    cafile: str | None = typer.Option(None, "--cafile", help="The station's cert.pem, to verify it (else its fingerprint is printed)."),
-    fingerprint: str | None = typer.Option(None, "--fingerprint", help="Refuse a station whose certificate has another SHA-256 fingerprint."),
+    cafile: str | None = typer.Option(None, "--cafile", help="The station's cert.pem (<data>/tls/cert.pem), to verify its self-signed certificate."),
+    fingerprint: str | None = typer.Option(
+        None, "--fingerprint", help="Accept only a station certificate with this SHA-256 fingerprint (shown on the operator page and at start)."
+    ),
+    insecure: bool = typer.Option(False, "--insecure", help="Accept any certificate (its fingerprint is printed): for tests on a trusted network only."),
     out: Path | None = typer.Option(None, "--out", help="Write the received poses here (poses.tum, answers.jsonl, summary.json)."),
     quiet: bool = typer.Option(False, "--quiet", help="Print only the summary, not each pose."),
 ) -> None:
-    """Stream to a base station as a mobile station would; prints each pose, then a JSON summary."""
-    summary = run_stream(source, url, realtime, encoding, jpeg_quality, camera, max_frames, token, resume, cafile, fingerprint, out, quiet, typer.echo)
+    """Stream to a base station as a mobile station would; prints each pose, then a JSON summary.
+    The station's certificate is verified (--cafile, --fingerprint, or a public one) unless --insecure;
+    exits with 4 (link) when the station refused frames."""
+    summary = run_stream(
+        source, url, realtime, encoding, jpeg_quality, camera, max_frames, token, resume, cafile, fingerprint, insecure, out, quiet, typer.echo
+    )
     typer.echo(json.dumps(summary))
+    if summary["frames_refused"]:
+        typer.echo(f"the station refused {summary['frames_refused']} frame(s): {'; '.join(summary['first_errors'][:2])}", err=True)
+        raise typer.Exit(int(ExitCode.LINK))
 
 
 def _session_reference(session: str, data: Path) -> tuple[str, Path]:

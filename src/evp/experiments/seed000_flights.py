@@ -71,8 +71,8 @@ def fly(scenario: str, seed: int, duration_s: float, fps: float, overrides: dict
         generate(scenario, SimOptions(duration_s=duration_s, fps=fps, seed=seed), data, workers=1)
         dataset = open_dataset(data)
         settings = resolve_settings(with_overrides(Settings(), overrides), dataset)
-        result, navigation = estimate(dataset, settings)
-        metrics = refine_and_write(result, navigation, dataset, settings, Path(scratch) / "run")
+        result, navigation, estimator = estimate(dataset, settings)
+        metrics = refine_and_write(result, navigation, estimator, dataset, settings, Path(scratch) / "run")
         record: dict = {"frames": metrics["frames"], "tracked_fraction": metrics["tracked_fraction"], "path_m": metrics.get("reference_path_length_m")}
         if metrics["tracked_frames"] < 3 or len(result.final_trajectory()) < 3:  # SLAM never initialised (e.g. too little texture): a result, not an error
             record["navigation"] = "SLAM tracked too few frames to score"

@@ -57,6 +57,13 @@ class GpsMonitor:
         drift = s.visual_sigma_floor_m + s.visual_drift_m_per_m * max(0.0, travelled_m - self._travelled_at_realign)
         return math.hypot(s.gps_sigma_m, drift)
 
+    def without_fixes(self) -> None:
+        """The world was georeferenced without GPS (a saved map's georeference): GPS is
+        unavailable until a fix comes, and that fix is checked for ``recovery_s`` before it is
+        trusted, as after a loss (a receiver that first locks mid-flight may be a spoofer's)."""
+        self._previous_trust = GpsTrust.TRUSTED
+        self.trust = GpsTrust.UNAVAILABLE
+
     def check_outage(self, t: float) -> None:
         """Call between fixes (e.g. every frame) so that jamming is noticed without a fix arriving."""
         if self._last_fix_t is not None and self.trust is not GpsTrust.UNAVAILABLE and t - self._last_fix_t > self.settings.outage_s:

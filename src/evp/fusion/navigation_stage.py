@@ -27,6 +27,15 @@ while the monitor says TRUSTED; the filter's chi-square gate is the second guard
 pull-off is gated before the monitor's window mean grows past its bound). Fixes without a lock
 (NaN) are dropped with a warning; the monitor's events (spoofing alarm, GPS lost or back, trust
 restored) are kept in ``gps_monitor.events`` and told as warnings.
+
+A saved map's georeference (``map_georeference``, :mod:`evp.fusion.map_georeference`: SLAM
+started from a map saved by a georeferenced run): the world is ENU at the map's origin from the
+start, and the first tracked pose (SLAM's relocalisation in the map) starts the filter from it at
+once: position, attitude, the map's pose and scale from the georeference with its uncertainty,
+velocity unknown; no visual-inertial initialisation, no GPS alignment (``georeferenced from the
+saved map``). GPS, when there is any, is checked and fused from then on as after an alignment.
+Should SLAM give up on the map (a reset that is not a relocalisation before the filter started:
+a new map of its own), the georeference is dropped and the stage starts as without one.
 """
 
 from __future__ import annotations
@@ -42,8 +51,9 @@ from evp.fusion.geodesy import EnuFrame
 from evp.fusion.gps_heading import WorldAlignment, align_to_gps, horizontal_spread
 from evp.fusion.gps_monitor import GpsMonitor, GpsTrust
 from evp.fusion.innovation import Innovation
+from evp.fusion.map_georeference import MapGeoreference
 from evp.fusion.measurements import BaroAltitude, GpsPosition, RangeHeight, VisualPose, WheelSpeed, YawRate
-from evp.fusion.nav_state import ATTITUDE, LOG_SCALE, MAP_ATTITUDE, MAP_POSITION, POSITION, VELOCITY, NavState
+from evp.fusion.nav_state import ATTITUDE, ERROR_DIM, LOG_SCALE, MAP_ATTITUDE, MAP_POSITION, POSITION, VELOCITY, NavState, skew3
 from evp.fusion.navigation_filter import NavigationFilter, NavigationOutput, initial_covariance
 from evp.fusion.visual_inertial_init import InertialAlignment, initialise_visual_inertial
 from evp.fusion.wheel_init import initialise_from_wheels
@@ -67,6 +77,9 @@ START_VELOCITY_SIGMA_M_S = 0.1
 START_ATTITUDE_SIGMA_RAD = 0.02
 START_MAP_ATTITUDE_SIGMA_RAD = 0.02
 START_MAP_POSITION_SIGMA_M = 0.01
+# IMU samples kept while waiting to relocalise in a saved map: its start needs the one at or before
+# the relocalised frame, which a frame's telemetry (up to its stamp) always brings in (1 s at 200 Hz).
+SAVED_MAP_IMU_KEPT = 200
 
 
 def position_quality(covariance: np.ndarray, zero_sigma_m: float) -> int:
@@ -138,6 +151,7 @@ class NavigationStage:
         settings: NavigationSettings | None = None,
         reset_counter: Callable[[], int] = lambda: 0,
         monitor_settings: MonitorSettings | None = None,
+        map_georeference: MapGeoreference | None = None,
     ):
         self.settings = settings or NavigationSettings()
         self.T_body_cam = np.asarray(T_body_cam, float)
@@ -168,6 +182,10 @@ class NavigationStage:
         self.last_tracking_state = TrackingState.NOT_INITIALIZED
         self.world_changes = 0  # jumps of the output frame: the filter's start (map units to metres) and the turn to ENU
         self._ahead: tuple[NavState, NavState, ImuSample] | None = None  # (filter state, it carried ahead, last sample): predict's cache
+        self.map_georeference = map_georeference  # the saved map's, until the filter starts from it (or SLAM leaves the map)
+        if map_georeference is not None:
+            self.enu_frame = EnuFrame(*map_georeference.origin)
+            self.status = "waiting to relocalise in the saved map (georeferenced)"
 
     @property
     def warnings(self) -> list[str]:
@@ -216,6 +234,8 @@ class NavigationStage:
                     sample.timestamp, "imu_gap", f"{gap:.3f} s without IMU samples before {sample.timestamp:.6f} s (initialisation integrates across it)"
                 )
             self._imu.append(sample)
+            if self.map_georeference is not None:  # the start from the map uses only the sample before it
+                del self._imu[:-SAVED_MAP_IMU_KEPT]
             return
         self._propagate(sample)
 
@@ -315,7 +335,9 @@ class NavigationStage:
         self._follow_resets(estimate)
         tracked = estimate.tracking_state.tracked
         if self.filter is None:
-            if tracked:
+            if tracked and self.map_georeference is not None:
+                self._start_from_saved_map(estimate)
+            elif tracked:
                 self._collect(estimate)
             if self.filter is None:
                 return estimate
@@ -384,10 +406,10 @@ class NavigationStage:
 
     @property
     def gps_state(self) -> str:
-        """GPS as the filter uses it: ``off`` (no fix with a lock yet, or ``use_gps`` false),
+        """GPS as the filter uses it: ``off`` (no fix with a lock yet, ``use_gps`` false, or waiting to relocalise in a saved map),
         ``aligning`` (pairing fixes for the heading fit), then the monitor's ``trusted`` /
         ``untrusted`` (spoofing suspected) / ``unavailable`` (jamming, outage)."""
-        if self.enu_frame is None:
+        if self.enu_frame is None or self.map_georeference is not None:  # the latter: waiting to relocalise in a saved map
             return "off"
         if self.world_alignment is None:
             return "aligning"
@@ -405,6 +427,8 @@ class NavigationStage:
         self._last_reset_count = count
         if self.filter is None:
             self._keyframes.clear()  # the poses so far belong to another map (or before a jump)
+            if self.map_georeference is not None and estimate.tracking_state is not TrackingState.RELOCALIZED:
+                self._leave_saved_map(estimate.timestamp)
             return
         keep_scale = estimate.tracking_state is TrackingState.RELOCALIZED
         self.filter.reset_visual_map(estimate.timestamp, keep_scale)
@@ -481,6 +505,75 @@ class NavigationStage:
         for record in self._wheel[start_wheel:]:
             self._observe_wheels(record)
         self._imu, self._keyframes, self._wheel, self._baro = [], [], [], []
+
+    def _start_from_saved_map(self, estimate: PoseEstimate) -> None:
+        """Start the filter at a pose in the saved map, from its georeference (see the module
+        docstring): nothing to wait for, the map's scale, heading and origin are known."""
+        geo, t = self.map_georeference, estimate.timestamp
+        R_bc, t_bc = self.T_body_cam[:3, :3], self.T_body_cam[:3, 3]
+        T_map_cam = estimate.T_world_cam
+        R_world_body = geo.R @ T_map_cam[:3, :3] @ R_bc.T
+        camera = geo.apply(T_map_cam[:3, 3][None])[0]
+        state = NavState(
+            t,
+            camera - R_world_body @ t_bc,
+            np.zeros(3),
+            R_world_body,
+            log_scale=math.log(geo.scale),
+            R_world_map=geo.R.copy(),
+            t_world_map=geo.t.copy(),
+            map_anchored=True,
+            georeferenced=True,
+        )
+        self.filter = NavigationFilter(state, self.settings, self._saved_map_covariance(state, camera - geo.t))
+        self.initialised_at = t
+        self.world_alignment = WorldAlignment(np.eye(3), np.zeros(3), camera, geo.rotation_sigma_rad, geo.translation_sigma_m, 0.0)
+        self.gps_monitor.without_fixes()
+        self.map_georeference = None
+        self.world_changes += 1
+        self.status = f"initialised at {t:.3f} s from the saved map's georeference: scale {geo.scale:.4g} m per map unit"
+        text = (
+            f"georeferenced from the saved map at {t:.3f} s: {geo.keyframes} keyframes fitted to ENU, "
+            f"RMS residual {geo.residual_m:.2f} m, 1-sigma {geo.translation_sigma_m:.2f} m"
+        )
+        self.notices.append(Notice(t, "info", "navigation_started", f"navigation filter {self.status}"))
+        self.notices.append(Notice(t, "info", "georeferenced", text))
+        start = next((i for i in range(len(self._imu) - 1, -1, -1) if self._imu[i].timestamp <= t), 0)
+        for sample in self._imu[start:]:
+            self._propagate(sample)
+        self._imu, self._keyframes, self._wheel, self._baro = [], [], [], []
+
+    def _saved_map_covariance(self, state: NavState, camera_offset: np.ndarray) -> np.ndarray:
+        """The prior with the map's pose and scale at the georeference's sigmas, the velocity
+        unknown (``saved_map_velocity_sigma_m_s``), and the body's pose as uncertain as the map's
+        pose makes it: the camera at ``x = s R x_map + t`` moves with the map's translation, its
+        rotation (about the map's origin: ``camera_offset`` is the camera from there) and its
+        scale, and turns with its rotation (fully correlated: one error moves both)."""
+        geo = self.map_georeference
+        map_states = np.r_[LOG_SCALE, MAP_ATTITUDE.start : MAP_ATTITUDE.stop, MAP_POSITION.start : MAP_POSITION.stop]
+        P_map = np.diag([geo.log_scale_sigma**2, *[geo.rotation_sigma_rad**2] * 3, *[geo.translation_sigma_m**2] * 3])
+        J = np.zeros((ERROR_DIM, 7))  # the error state from the map's errors (log scale, rotation, translation)
+        J[LOG_SCALE, 0] = 1.0
+        J[MAP_ATTITUDE, 1:4] = np.eye(3)
+        J[MAP_POSITION, 4:7] = np.eye(3)
+        J[POSITION, 0] = camera_offset
+        J[POSITION, 1:4] = -skew3(camera_offset)
+        J[POSITION, 4:7] = np.eye(3)
+        J[ATTITUDE, 1:4] = state.R_world_body.T  # a world rotation, in the body's local error
+        linked = np.r_[POSITION.start : POSITION.stop, ATTITUDE.start : ATTITUDE.stop, map_states]
+        P = initial_covariance(self.settings)
+        P[np.ix_(linked, linked)] = (J @ P_map @ J.T)[np.ix_(linked, linked)]
+        P[POSITION, POSITION] += np.eye(3) * START_POSITION_SIGMA_M**2
+        P[ATTITUDE, ATTITUDE] += np.eye(3) * START_ATTITUDE_SIGMA_RAD**2
+        P[VELOCITY, VELOCITY] = np.eye(3) * self.settings.saved_map_velocity_sigma_m_s**2
+        return P
+
+    def _leave_saved_map(self, timestamp: float) -> None:
+        """SLAM started a map of its own: the saved map's georeference no longer applies."""
+        self.map_georeference, self.enu_frame = None, None
+        self.status = "scale not yet observable: SLAM left the saved map for a new one"
+        text = f"not relocalised in the saved map by {timestamp:.3f} s: SLAM started a new map; georeferencing by GPS as without a saved map"
+        self._warn(timestamp, "saved_map_abandoned", text)
 
     def _start_covariance(self, camera_position: np.ndarray) -> np.ndarray:
         """The prior (settings) with what the alignment determined narrowed to the START_ sigmas.

@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 
 from evp.errors import DatasetError
+from evp.io.image_headers import read_image_header
 from evp.types import BaroSample, BeaconRange, CameraModel, Frame, GpsFix, ImuSample, RangeSample, Trajectory, WheelOdometry, WifiScan
 
 TelemetryRecord = ImuSample | GpsFix | BaroSample | WheelOdometry | WifiScan | RangeSample | BeaconRange
@@ -84,11 +85,20 @@ class Dataset:
         return {name: count for name, count in counts.items() if count}
 
 
+# The largest image decoded: 134 Mpx (2^27; 400 MB as BGR), beyond any camera a dataset holds
+# (a 108 Mpx phone photo fits); a 20000x20000 PNG of a few kilobytes would cost 1.2 GB to decode.
+MAX_DECODE_PIXELS = 2**27
+
+
 def load_image(path: Path) -> np.ndarray:
-    """Decode an image file as stored (grey stays grey), naming the file when it is unreadable."""
+    """Decode an image file as stored (grey stays grey), naming the file when it is unreadable; an
+    image too large to decode (MAX_DECODE_PIXELS) is refused from its header, before decoding."""
     data = np.fromfile(str(path), dtype=np.uint8) if path.is_file() else None
     if data is None:
         raise DatasetError(path, "image file is missing")
+    header = read_image_header(data[:65536].tobytes())
+    if header is not None and header.width * header.height > MAX_DECODE_PIXELS:
+        raise DatasetError(path, f"{header.format} of {header.width}x{header.height} pixels: more than {MAX_DECODE_PIXELS / 1e6:.0f} Mpx, not decoded")
     image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
     if image is None:
         raise DatasetError(path, "image cannot be decoded (empty or corrupt file)")
@@ -117,7 +127,13 @@ def image_file_frames(times: np.ndarray, paths: list[Path]) -> Callable[[], Iter
 
 
 def check_increasing(path: Path, stamps: np.ndarray, what: str, line_numbers: list[int] | None = None) -> None:
-    """Raise naming the first line whose timestamp does not increase (``line_numbers[i]`` is row i's line)."""
+    """Raise naming the first line whose timestamp is not a finite number or does not increase
+    (``line_numbers[i]`` is row i's line)."""
+    not_finite = np.flatnonzero(~np.isfinite(stamps))
+    if len(not_finite):
+        row = int(not_finite[0])
+        line = line_numbers[row] if line_numbers is not None else row + 1
+        raise DatasetError(path, f"{what} timestamp {float(stamps[row])!r} is not a finite number ({len(not_finite)} of {len(stamps)} such)", line=line)
     bad = np.flatnonzero(np.diff(stamps) <= 0)
     if len(bad):
         row = int(bad[0]) + 1

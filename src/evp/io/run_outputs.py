@@ -4,17 +4,22 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from evp.config import Settings, write_settings
 from evp.errors import EvaluationError
+from evp.fusion.map_georeference import MapGeoreference
 from evp.fusion.navigation_stage import NavigationStage
 from evp.io.dataset import Dataset
 from evp.io.navigation_outputs import live_navigation_metrics, navigation_metrics, write_navigation_csv
 from evp.io.trajectory import write_trajectory
 from evp.pipeline import RunResult
 from evp.types import Trajectory
+
+if TYPE_CHECKING:
+    from evp.slam.map import Map
 
 
 def _stats(values: list[float]) -> dict:
@@ -41,6 +46,27 @@ def run_timing(result: RunResult) -> dict:
         if name == "mapping_ms_per_keyframe":
             timing["mapping_ms_median"] = _stats(value)["median"]
     return timing
+
+
+def run_map_georeference(estimator, sparse_map: Map, result: RunResult, stage: NavigationStage | None, settings: Settings) -> MapGeoreference | None:
+    """The georeference map.npz keeps: fitted to this run's own keyframes where the navigation
+    stage was georeferenced with GPS trusted (:func:`~evp.fusion.map_georeference.georeference_from_run`);
+    else, for a run that stayed in the saved map it started from, that map's (the frame is the
+    same); else None."""
+    from evp.fusion.map_georeference import georeference_from_run
+    from evp.io.map_files import read_map_georeference  # map_files imports the SLAM map: only runs that have one
+
+    if stage is not None and stage.enu_frame is not None:
+        first_own = getattr(estimator, "first_own_keyframe", 0)
+        keyframes = [(kf.timestamp, kf.centre) for kf in sparse_map.keyframes.values() if kf.id >= first_own]
+        frame = stage.enu_frame
+        origin = (frame.latitude_deg, frame.longitude_deg, frame.altitude_m)
+        fitted = georeference_from_run(keyframes, result.estimates, origin, settings.navigation.gps_default_sigma_m)
+        if fitted is not None:
+            return fitted
+    if getattr(estimator, "in_saved_map", False):
+        return read_map_georeference(Path(settings.slam.map))
+    return None
 
 
 def write_outputs(
@@ -92,7 +118,7 @@ def write_outputs(
         from evp.io.map_files import save_map, write_map_ply
 
         write_map_ply(sparse_map, out / "map.ply")
-        save_map(sparse_map, out / "map.npz")
+        save_map(sparse_map, out / "map.npz", run_map_georeference(estimator, sparse_map, fused_result, fused_stage, settings))
     with (out / "states.csv").open("w") as handle:
         handle.write("timestamp,state,quality\n")
         for e in result.estimates:

@@ -6,7 +6,23 @@ from pathlib import Path
 
 import numpy as np
 
-from evp.errors import DatasetError
+from evp.errors import DataFormatError, DatasetError
+
+
+def read_text_file(path: Path, error: type[DataFormatError] = DatasetError) -> str:
+    """A text file's contents; a missing, unreadable or binary file (undecodable bytes, NUL) is
+    one specific ``error`` naming the file."""
+    if not path.is_file():
+        raise error(path, "file not found")
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError as exc:
+        raise error(path, f"not a text file (byte 0x{exc.object[exc.start]:02x} at offset {exc.start} is not UTF-8)") from None
+    except OSError as exc:
+        raise error(path, f"cannot be read: {exc.strerror or exc}") from None
+    if "\x00" in text:
+        raise error(path, f"not a text file (a NUL byte at offset {text.index(chr(0))})")
+    return text
 
 
 def read_table(
@@ -17,12 +33,7 @@ def read_table(
     Lines starting with ``#`` are comments; a first line that is not numeric is a header when
     ``header`` is None. Returns (values, 1-based line numbers, header fields).
     """
-    if not path.is_file():
-        raise DatasetError(path, "file not found")
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DatasetError(path, f"cannot be read as text: {exc}") from exc
+    text = read_text_file(path)
     rows: list[list[float]] = []
     numbers: list[int] = []
     names: list[str] = []
@@ -54,12 +65,11 @@ def read_table(
 
 def read_named_lines(path: Path) -> tuple[np.ndarray, list[str], list[int]]:
     """Lines of ``timestamp name`` pairs (TUM rgb.txt, RPG images.txt, EuRoC data.csv)."""
-    if not path.is_file():
-        raise DatasetError(path, "file not found")
+    text = read_text_file(path)
     stamps: list[float] = []
     names: list[str] = []
     numbers: list[int] = []
-    for number, raw in enumerate(path.read_text().splitlines(), start=1):
+    for number, raw in enumerate(text.splitlines(), start=1):
         line = raw.strip()
         if not line or line.startswith("#"):
             continue

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from evp.errors import TrajectoryFormatError
+from evp.io.text_tables import read_text_file
 from evp.types import Trajectory
 
 
@@ -32,12 +33,7 @@ CSV_HEADER = "timestamp,tx,ty,tz,qx,qy,qz,qw"
 
 def _data_lines(path: Path) -> list[tuple[int, str]]:
     """(1-based line number, text) of the non-empty, non-comment lines of a file."""
-    try:
-        text = path.read_text()
-    except UnicodeDecodeError as exc:
-        raise TrajectoryFormatError(path, f"not a text file ({exc.reason})") from exc
-    except OSError as exc:
-        raise TrajectoryFormatError(path, f"cannot be read: {exc.strerror}") from exc
+    text = read_text_file(path, TrajectoryFormatError)
     lines = []
     for number, raw in enumerate(text.splitlines(), start=1):
         stripped = raw.strip()

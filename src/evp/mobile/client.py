@@ -6,6 +6,10 @@ fast as possible, at most ``max_in_flight`` frames are unanswered at a time and 
 after the estimator (``answers: after_vision``), so the station estimates every frame and the
 trajectory equals ``evp run``'s. A dataset with an IMU and its camera extrinsic sends the
 extrinsic, so the station fuses the telemetry as ``evp run`` does.
+
+A frame's sequence number is its index in the source, so ``--resume`` continues where the station
+stopped taking them (the welcome's ``next_seq``): the frames before it, and the telemetry before
+the first frame sent, are skipped, not sent again to be refused.
 """
 
 from __future__ import annotations
@@ -59,16 +63,20 @@ def mobile_url(url: str) -> str:
     return urlunsplit((scheme, parts.netloc, path, parts.query, ""))
 
 
-def tls_context(cafile: str | None) -> ssl.SSLContext:
-    """Verify against ``cafile`` (the station's cert.pem) when given; else accept the station's
-    self-signed certificate (its fingerprint is reported, and can be pinned with ``fingerprint``)."""
-    if cafile:
-        context = ssl.create_default_context(cafile=cafile)
-        context.check_hostname = False  # the station's certificate names its addresses, not DNS names users type
+def tls_context(cafile: str | None, accept_any: bool) -> ssl.SSLContext:
+    """The station's certificate is verified: against ``cafile`` (its cert.pem, self-signed) when
+    given, else against the system's authorities (a station behind a proxy with a public
+    certificate). ``accept_any`` (a pinned fingerprint, checked once connected, or --insecure)
+    takes any certificate here."""
+    if accept_any:
+        context = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+        context.check_hostname = False
+        context.verify_mode = ssl.CERT_NONE
         return context
-    context = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
-    context.check_hostname = False
-    context.verify_mode = ssl.CERT_NONE
+    context = ssl.create_default_context(cafile=cafile)
+    if cafile:
+        context.check_hostname = False  # the station's certificate names its addresses, not DNS names users type
+        context.verify_flags |= ssl.VERIFY_X509_PARTIAL_CHAIN  # the self-signed leaf is its own trust anchor
     return context
 
 
@@ -76,6 +84,8 @@ def tls_context(cafile: str | None) -> ssl.SSLContext:
 class StreamReport:
     session_id: str = ""
     frames_sent: int = 0
+    frames_skipped: int = 0  # resumed: frames the station already had
+    frames_refused: int = 0  # answered with an error
     telemetry_sent: int = 0
     poses: dict[int, Pose] = field(default_factory=dict)
     dropped: dict[int, str] = field(default_factory=dict)
@@ -91,6 +101,8 @@ class StreamReport:
         return {
             "session_id": self.session_id,
             "frames_sent": self.frames_sent,
+            "frames_skipped": self.frames_skipped,
+            "frames_refused": self.frames_refused,
             "telemetry_sent": self.telemetry_sent,
             "poses_received": len(self.poses),
             "poses_tracked": tracked,
@@ -112,6 +124,7 @@ class StreamClient:
         device: str = "evp-stream",
         cafile: str | None = None,
         fingerprint: str | None = None,
+        insecure: bool = False,
         on_pose: Callable[[Pose], None] | None = None,
         log: Callable[[str], None] | None = None,
     ):
@@ -120,6 +133,7 @@ class StreamClient:
         self.device = device
         self.cafile = cafile
         self.pin = fingerprint.upper() if fingerprint else None
+        self.insecure = insecure
         self.on_pose = on_pose
         self.log = log or (lambda text: print(text, file=sys.stderr))
         self.report = StreamReport()
@@ -132,7 +146,13 @@ class StreamClient:
         import websockets
 
         try:
-            return await websockets.connect(self.url, ssl=tls_context(self.cafile) if self.url.startswith("wss") else None, max_size=2**25, open_timeout=20)
+            context = tls_context(self.cafile, self.insecure or bool(self.pin)) if self.url.startswith("wss") else None
+            return await websockets.connect(self.url, ssl=context, max_size=2**25, open_timeout=20)
+        except ssl.SSLCertVerificationError as exc:
+            raise StreamError(
+                f"{self.url}: the station's certificate is not trusted ({exc.verify_message}); give its cert.pem (--cafile), "
+                "its fingerprint from the operator page or QR code (--fingerprint), or --insecure"
+            ) from exc
         except (OSError, websockets.exceptions.InvalidHandshake, websockets.exceptions.InvalidMessage, ssl.SSLError, TimeoutError) as exc:
             if self.url.startswith("ws://"):
                 self.log(f"{self.url}: no plain WebSocket there ({exc.__class__.__name__}); trying TLS")
@@ -149,8 +169,8 @@ class StreamClient:
         self.report.fingerprint = der_fingerprint(ssl_object.getpeercert(binary_form=True))
         if self.pin and self.report.fingerprint != self.pin:
             raise StreamError(f"the station's certificate {self.report.fingerprint} is not the pinned {self.pin}")
-        if not self.pin and not self.cafile:
-            self.log(f"station certificate SHA-256 {self.report.fingerprint} (pin it with --fingerprint)")
+        if self.insecure and not self.pin:
+            self.log(f"--insecure: station certificate SHA-256 {self.report.fingerprint} not verified (pin it with --fingerprint)")
 
     async def run(
         self, source: StreamSource, realtime: bool, encoding: str, jpeg_quality: int = 90, resume: str | None = None, max_in_flight: int = 2
@@ -190,10 +210,16 @@ class StreamClient:
         self, connection, source: StreamSource, realtime: bool, encoding: str, jpeg_quality: int, max_in_flight: int, receiver: asyncio.Task
     ) -> None:
         pace_start: float | None = None
+        frame_index = 0
         for item in source.items:
             if receiver.done():
                 receiver.result()  # re-raises the link failure
                 raise StreamError("the station closed the connection")
+            if frame_index < self._first_seq:  # resumed: the station has these
+                if isinstance(item, Frame):
+                    frame_index += 1
+                    self.report.frames_skipped += 1
+                continue
             if realtime and not source.live:
                 now = time.monotonic()
                 if pace_start is None:
@@ -205,7 +231,8 @@ class StreamClient:
                     answered = asyncio.create_task(self._answered.wait())
                     await asyncio.wait([receiver, answered], return_when=asyncio.FIRST_COMPLETED)
                     answered.cancel()
-                message = await asyncio.to_thread(encode_image, item.image, self._first_seq + self.report.frames_sent, item.timestamp, encoding, jpeg_quality)
+                message = await asyncio.to_thread(encode_image, item.image, frame_index, item.timestamp, encoding, jpeg_quality)
+                frame_index += 1
                 self._in_flight.add(message.seq)
                 self.report.sent_at[message.seq] = time.monotonic()
                 await connection.send(message.pack())
@@ -260,10 +287,11 @@ class StreamClient:
             self._resolve(message.seq)
         elif isinstance(message, Error):
             self.report.errors.append(f"{message.code}: {message.message}")
+            self.report.frames_refused += message.seq is not None
             self.log(f"station error: {message.code}: {message.message}")
             self._resolve(message.seq)
         elif isinstance(message, Status):
-            if message.state in ("running", "stopped"):
+            if message.state in ("running", "stopped", "failed"):
                 self._ready.set()
         elif isinstance(message, Enable):
             self.log(f"estimation {'enabled' if message.enabled else 'disabled'} by the station")

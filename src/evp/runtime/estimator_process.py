@@ -74,11 +74,16 @@ class EstimatorProcess:
     def send_side(self, message: Any) -> None:
         """A message outside the frame policy (telemetry): sent now, in order with the frames sent."""
         if not self._closing:
-            self._connection.send(message)
+            self._send(message, frame=False)
 
-    def _send(self, message: Any) -> None:
-        self._busy = True
-        self._connection.send(message)
+    def _send(self, message: Any, frame: bool = True) -> None:
+        """To the process; a process that died meanwhile is reported by the reader (on_exit), and
+        the frame stays with its sender, which answers it then."""
+        self._busy = self._busy or frame
+        try:
+            self._connection.send(message)
+        except (OSError, ValueError):  # broken pipe: the process is gone
+            pass
 
     def _read_loop(self) -> None:
         while True:

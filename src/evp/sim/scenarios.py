@@ -52,6 +52,15 @@ class SimOptions(BaseModel):
     speed_m_s: float | None = Field(None, gt=0)
     pattern: str | None = Field(None, pattern="^(lawnmower|loops|free)$")
     area_m: tuple[float, float] | None = None
+    ground_half_m: float | None = Field(
+        None,
+        gt=0,
+        description="drone-flight: half the side of the textured ground, m (None: the flown path's extent plus a footprint, at least 60); the texture depends on it, so flights over one world give the same",
+    )
+    takeoff_m: tuple[float, float] = Field(
+        (0.0, 0.0),
+        description="drone-flight: take-off point (x, y) in m from the world's origin; with the same ground_half_m the world (ground, relief, GPS origin) stays the same: a second flight over the area from elsewhere",
+    )
     gimbal: bool = Field(False, description="camera held level (nadir) by a gimbal instead of fixed to the body")
     relief: bool = Field(True, description="buildings and trees on the ground (drone scenarios)")
     distortion: bool = True
@@ -198,13 +207,14 @@ def drone_flight(options: SimOptions) -> Scenario:
         width, height = options.area_m or (200.0, 150.0)
         horizontal = paths.random_waypoints(rng, width, height, 12)
     route = np.column_stack([horizontal, np.full(len(horizontal), altitude)])
-    points = np.vstack([[0, 0, 0], [0, 0, altitude], route])
+    takeoff_x, takeoff_y = options.takeoff_m
+    points = np.vstack([[takeoff_x, takeoff_y, 0], [takeoff_x, takeoff_y, altitude], route])
     samples = np.vstack([paths.hold(points[0], 2.0), paths.walk_polyline(points, [climb] + [speed] * (len(points) - 2))])
     samples = paths.fit_duration(samples, duration - altitude / climb - 2.0)
     landing = paths.walk_polyline(np.array([samples[-1], [*samples[-1, :2], 0.0]]), climb)
     samples = paths.fit_duration(paths.smooth(np.vstack([samples, landing, paths.hold([*samples[-1, :2], 0.0], 2.0)]), 1.5), duration)
     times = np.arange(len(samples)) * paths.SAMPLE_DT
-    half = max(np.abs(samples[:, :2]).max() + footprint, 60.0)
+    half = options.ground_half_m or max(np.abs(samples[:, :2]).max() + footprint, 60.0)
     ground = _ground(options, "rich", half, max(0.04, altitude / camera.fx / 1.5))
     quads = [ground] + (_relief(rng, half, 25.0, options.seed) if options.relief else [])
     return Scenario(

@@ -8,7 +8,9 @@ optimisation; when lost, relocalisation against the keyframes (the map is never 
 poses are stored relative to their reference keyframe, so the final trajectory follows the
 keyframes refined by bundle adjustment (as ORB-SLAM saves it), while the live answer is the pose
 known at that moment. Frames fed before initialisation are localised against the final map
-for the refined trajectory too (``slam.start_backfill_frames``).
+for the refined trajectory too (``slam.start_backfill_frames``). Started from a saved map
+(``initial_map``), it relocalises in it instead of initialising, and starts a map of its own only
+after ``slam.map_relocalise_timeout_s`` without finding it.
 """
 
 from __future__ import annotations
@@ -93,6 +95,16 @@ class _InitReference:
 
 
 @dataclass
+class SavedMapState:
+    """A start from a saved map: its keyframes, when tracking first relocalised in it, and when it
+    gave up waiting for that and started a new map (None until then)."""
+
+    keyframes: int
+    relocalised_at: float | None = None
+    fell_back_at: float | None = None
+
+
+@dataclass
 class _FrameRecord:
     timestamp: float
     reference_kf: int
@@ -114,6 +126,7 @@ class SlamSystem(Estimator):
         *,
         vocabulary: Vocabulary,
         scheduler: Scheduler | None = None,
+        initial_map: Map | None = None,
     ):
         self.camera = camera
         self.settings = settings or SlamSettings()
@@ -121,7 +134,8 @@ class SlamSystem(Estimator):
         self.extractor = OrbExtractor(orb or OrbSettings(), camera, self.scheduler.parallel)
         self.K = camera.K
         self.bounds = undistorted_bounds(self.extractor)
-        self.map = Map(self.scheduler.map_lock)
+        self.map = Map(self.scheduler.map_lock) if initial_map is None else initial_map
+        self.map.lock = self.scheduler.map_lock
         self.vocabulary = vocabulary
         self.mapping = self.scheduler.start_mapping(LocalMapper(self.map, self.extractor, self.settings))
         self.state = TrackingState.NOT_INITIALIZED
@@ -142,6 +156,12 @@ class SlamSystem(Estimator):
         self._last_inliers = 0
         self._feature_budget = STARVED_FEATURE_BUDGET
         self._globally_adjusted = False
+        # a saved map to start from: relocalise in it (no two-view start) until
+        # slam.map_relocalise_timeout_s passes without, then start a new map
+        self.first_own_keyframe = self.map.id_counters[0]  # keyframes before this id came with the saved map
+        self.saved_map = SavedMapState(len(self.map.keyframes)) if initial_map is not None else None
+        if initial_map is not None:
+            self.state = TrackingState.LOST
 
     # --- public ---------------------------------------------------------------------------
 
@@ -161,6 +181,8 @@ class SlamSystem(Estimator):
                     self._before_start.append((len(self.records), features))  # this frame's record comes next
             elif self.state == TrackingState.LOST:
                 T_cw = self._relocalise(frame.timestamp, features)
+                if T_cw is None:
+                    self._give_up_saved_map(frame.timestamp)
             else:
                 T_cw = self._track(frame.timestamp, features)
             estimate = self._answer(frame, T_cw)
@@ -216,7 +238,15 @@ class SlamSystem(Estimator):
         }
 
     def report(self) -> dict:
-        return {"loop_closures": [asdict(closure) for closure in self.loop_closures]}
+        report = {"loop_closures": [asdict(closure) for closure in self.loop_closures]}
+        if self.saved_map is not None:
+            report["saved_map"] = asdict(self.saved_map)
+        return report
+
+    @property
+    def in_saved_map(self) -> bool:
+        """Started from a saved map and still in it (not fallen back to a new one)."""
+        return self.saved_map is not None and self.saved_map.fell_back_at is None
 
     def refined_trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         """Timestamps and ``T_world_cam`` of every tracked frame, through the final keyframe poses.
@@ -617,6 +647,8 @@ class SlamSystem(Estimator):
         for kf_id in self.map.database.relocalisation_candidates(self._bow(features), self.map.keyframes, RELOCALISATION_CANDIDATES):
             T_cw = self._relocalise_against(timestamp, features, self.map.keyframes[kf_id])
             if T_cw is not None:
+                if self.saved_map is not None and self.saved_map.relocalised_at is None:
+                    self.saved_map.relocalised_at = timestamp
                 self.state = TrackingState.RELOCALIZED
                 self.reset_counter += 1
                 self._last_reloc_frame = self._frame_count
@@ -661,6 +693,19 @@ class SlamSystem(Estimator):
         if count < self.settings.min_relocalised_inliers:
             return None
         return T_cw, matched, count
+
+    def _give_up_saved_map(self, timestamp: float) -> None:
+        """Still not relocalised in the saved map ``slam.map_relocalise_timeout_s`` after the first
+        frame: the vehicle is somewhere the map does not cover. The saved map is dropped and a new
+        one initialised (a reset for consumers: its frame and scale are new)."""
+        saved = self.saved_map
+        if saved is None or saved.relocalised_at is not None or saved.fell_back_at is not None:
+            return
+        first = self.records[0].timestamp if self.records else timestamp
+        if timestamp - first < self.settings.map_relocalise_timeout_s:
+            return
+        saved.fell_back_at = timestamp
+        self._restart()
 
     # --- answers ----------------------------------------------------------------------------
 

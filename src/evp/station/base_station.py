@@ -14,9 +14,10 @@ from typing import TYPE_CHECKING
 
 from evp import __version__
 from evp.config import Settings
-from evp.station.protocol import PROTOCOL_VERSION, Config, GpsTelemetry, Hello, Pose, ProtocolError
+from evp.station.protocol import PROTOCOL_VERSION, SESSION_ID, Config, GpsTelemetry, Hello, Pose, ProtocolError
 from evp.station.recording import has_summary, repair
 from evp.station.session import LiveSession
+from evp.station.storage import StorageGuard
 from evp.station.store import SessionStore
 
 if TYPE_CHECKING:
@@ -35,10 +36,13 @@ class Station:
     def __init__(self, data_dir: Path, settings: Settings, db_url: str | None = None, token: str = "", mavlink_url: str | None = None):
         self.data_dir = Path(data_dir)
         self.data_dir.mkdir(parents=True, exist_ok=True)
+        self.data_dir.chmod(0o700)  # recordings, database and key: the station's user only
         self.settings = settings
         self.camera = default_camera(settings)
         self.token = token
         self.store = SessionStore(db_url or f"sqlite:///{(self.data_dir / 'evp.sqlite').resolve()}")
+        self.storage = StorageGuard(self.data_dir, settings.station.min_free_disk_mb, lambda: self.store.problem)
+        self._storage_failing = False  # what the operators were last told
         self.sessions: dict[str, LiveSession] = {}
         self.operators: set[asyncio.Queue] = set()
         self.link: dict = {}
@@ -51,6 +55,8 @@ class Station:
 
     async def start(self) -> None:
         """Recover what a station that stopped abruptly left behind, then start the outputs."""
+        loop = asyncio.get_running_loop()
+        self.store.on_problem = lambda _text: loop.call_soon_threadsafe(self.check_storage)  # from the writer's thread
         for session_id in self.store.mark_live_sessions_interrupted():
             self.store.log_event(session_id, "warning", "interrupted", "the station stopped during this session")
         for row in self.store.list_sessions(limit=None, status="interrupted"):  # an ended session's recording is always closed
@@ -58,6 +64,7 @@ class Station:
             leftover = path.with_suffix(".mcap.old")
             if leftover.exists() and not path.exists():
                 leftover.replace(path)
+            path.with_suffix(".mcap.tmp").unlink(missing_ok=True)  # a compaction cut short: the journal is intact
             if path.is_file() and not has_summary(path):
                 kept = await asyncio.to_thread(repair, path)
                 self.store.log_event(row["id"], "warning", "recording_repaired", f"{path.name}: closed after an abrupt stop ({kept} messages kept)")
@@ -93,28 +100,51 @@ class Station:
             raise ProtocolError("bad_token", "missing or wrong token" if hello.token else "this station needs a token (hello.token)")
 
     def open_session(self, hello: Hello) -> tuple[LiveSession, bool]:
-        """A new session, or the one ``hello.resume`` names (kept in memory or reopened from disk)."""
+        """A new session, or the one ``hello.resume`` names (kept in memory or reopened from disk);
+        refused while the station cannot record, and for a session that ended."""
+        problem = self.storage_problem()
+        if problem:
+            raise ProtocolError("storage_full", problem)
         if hello.resume:
-            session = self.sessions.get(hello.resume)
-            if session is None:
-                row = self.store.session(hello.resume)
-                if row is None:
-                    raise ProtocolError("unknown_session", f"no session {hello.resume!r} to resume")
-                session = LiveSession(row["id"], row["device"], self.store, Path(row["mcap_path"]), self, self.settings.station.estimate_on_connect)
-                session.continue_from(self.store.rows("frames", session.id))
-                self.sessions[session.id] = session
-            if session.connected:
-                raise ProtocolError("not_ready", f"session {hello.resume} is already connected")
-            session.event("info", "resumed", f"session resumed by {hello.device or 'a mobile station'}")
-            return session, True
+            return self._resume(hello), True
         recordings = self.data_dir / "sessions"
         session_id = self.store.create_session(hello.device, "")
         path = recordings / f"{session_id}.mcap"
         self.store.update_session(session_id, mcap_path=str(path.resolve()))
-        session = LiveSession(session_id, hello.device, self.store, path, self, self.settings.station.estimate_on_connect)
+        session = self._session(session_id, hello.device, path)
         self.sessions[session_id] = session
         session.event("info", "connected", f"mobile station {hello.device or '(unnamed)'} connected")
         return session, False
+
+    def _resume(self, hello: Hello) -> LiveSession:
+        if not SESSION_ID.fullmatch(hello.resume):
+            raise ProtocolError("unknown_session", f"{hello.resume[:64]!r} is not a session id (YYYYMMDD-HHMMSS-xxxxxx)")
+        session = self.sessions.get(hello.resume)
+        if session is None:
+            row = self.store.session(hello.resume)
+            if row is None:
+                raise ProtocolError("unknown_session", f"no session {hello.resume!r} to resume")
+            if row["status"] in ("ended", "failed"):
+                raise ProtocolError("session_ended", f"session {hello.resume} {row['status']}; ended sessions are final: start a new one")
+            session = self._session(row["id"], row["device"], Path(row["mcap_path"]))
+            session.continue_from(self.store.rows("frames", session.id))
+            self.sessions[session.id] = session
+        if session.ended:
+            raise ProtocolError("session_ended", f"session {hello.resume} ended; ended sessions are final: start a new one")
+        if session.connected:
+            raise ProtocolError("not_ready", f"session {hello.resume} is already connected")
+        session.event("info", "resumed", f"session resumed by {hello.device or 'a mobile station'}")
+        return session
+
+    def _session(self, session_id: str, device: str, path: Path) -> LiveSession:
+        """The session with its recording open; one whose file cannot be opened is marked failed
+        (never shown live) and refused with storage_full."""
+        try:
+            return LiveSession(session_id, device, self.store, path, self, self.settings.station.estimate_on_connect)
+        except OSError as exc:
+            self.store.update_session(session_id, status="failed", ended_at=time.time())
+            self.on_event(None, self.store.log_event(session_id, "error", "storage_full", f"recording {path.name} cannot be opened: {exc}"))
+            raise ProtocolError("storage_full", f"the recording cannot be opened: {exc.strerror or exc}") from None
 
     async def end_session(self, session: LiveSession) -> None:
         await session.close("ended")
@@ -159,6 +189,25 @@ class Station:
 
     def settings_json(self) -> str:
         return self.settings.model_dump_json()
+
+    def storage_problem(self) -> str | None:
+        return self.storage.problem()
+
+    def check_storage(self) -> None:
+        """Tell the operators (and the event log, once it can write) when recording stops or
+        works again; the mobile stations hear of it in their status and their frames' errors."""
+        problem = self.storage_problem()
+        if bool(problem) == self._storage_failing:
+            return
+        self._storage_failing = bool(problem)
+        if problem:
+            self.on_event(None, self.store.log_event(None, "error", "storage_full", f"{problem}; new recording refused"))
+        else:
+            self.on_event(None, self.store.log_event(None, "info", "storage_ok", "recording works again"))
+        self.broadcast({"type": "storage", "problem": problem})
+        for session in self.sessions.values():
+            if session.connected:
+                session.reply(session.status())
 
     def on_pose(self, session: LiveSession, pose: Pose, latency_ms: float) -> None:
         self.broadcast({"type": "pose", "session_id": session.id, "pose": pose.model_dump(), "latency_ms": latency_ms})
@@ -207,12 +256,14 @@ class Station:
             "data_dir": str(self.data_dir.resolve()),
             "db": self.store.engine.url.render_as_string(hide_password=True),
             "mavlink": self.mavlink_url,
+            "storage": self.storage_problem(),
             "live": {sid: {"status": s.status().model_dump(), "connected": s.connected, "device": s.device} for sid, s in self.sessions.items()},
         }
 
     async def _status_loop(self) -> None:
         while True:
             await asyncio.sleep(1.0)
+            self.check_storage()
             for session in list(self.sessions.values()):
                 if session.connected:
                     session.reply(session.status())

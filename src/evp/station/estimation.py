@@ -145,7 +145,7 @@ def worker_main(connection, camera: CameraModel, settings_json: str, T_body_cam:
     :mod:`evp.runtime.live_pipeline` for how ``answers`` at once and vision share it."""
     from evp.config import Settings
     from evp.fusion.navigation_stage import NavigationStage
-    from evp.run_setup import make_estimator
+    from evp.run_setup import make_estimator, saved_map_georeference
 
     settings = Settings.model_validate_json(settings_json)
     estimator = make_estimator(camera, settings)
@@ -159,7 +159,8 @@ def worker_main(connection, camera: CameraModel, settings_json: str, T_body_cam:
     stage = None
     if T_body_cam is not None and settings.navigation.enabled and settings.estimator in ("slam", "auto"):
         matrix = np.asarray(T_body_cam, float).reshape(4, 4)
-        stage = NavigationStage(matrix, settings.navigation, lambda: estimator.reset_counter, settings.gps_monitor)
+        georeference = saved_map_georeference(settings) if getattr(estimator, "in_saved_map", False) else None
+        stage = NavigationStage(matrix, settings.navigation, lambda: estimator.reset_counter, settings.gps_monitor, map_georeference=georeference)
     at_once = answers != "after_vision"
     sinks = [] if at_once else [PoseSender(send, estimator, stage)]
     live = LivePipeline(Pipeline(estimator, sinks, [stage] if stage is not None else []), at_once, settings.station.vision_wait_s)

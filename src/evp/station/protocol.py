@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import struct
 from dataclasses import asdict, dataclass
 from typing import Annotated, Literal
@@ -18,12 +19,27 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_serial
 
 from evp.config import OrbSettings
 from evp.errors import LinkError
+from evp.io.image_headers import image_format, read_image_header
 from evp.types import CameraModel
 
 PROTOCOL_VERSION = 1
 MAX_TEXT_BYTES = 64 * 1024
 MAX_IMAGE_BYTES = 16 * 1024 * 1024
 MAX_IMAGE_SIDE = 8192
+# Timestamps are seconds on the sensor's clock, from 0 to 2^31 s (68 years): what a recording's
+# ROS header (int32 seconds) holds, and far beyond any clock in seconds since boot or since 1970.
+# A phone that sends milliseconds (1.7e12) gets a bad_timestamp error saying so, not a recording
+# that cannot hold its frame.
+MAX_TIMESTAMP_S = float(2**31)
+# A session id as the station makes them (evp.station.store.create_session); anything else in a
+# resume or a URL is refused before it reaches a query, a file name or a header.
+SESSION_ID = re.compile(r"\d{8}-\d{6}-[0-9a-f]{6}")
+# A camera the estimators can work with: the focal length within 1/20 and 50 times the image's
+# larger side (a 170-degree fisheye to a 1-degree telephoto), the principal point on the image,
+# and lens coefficients of at most 1000 in magnitude (OpenCV's rational models reach tens).
+# Beyond these a camera is a typo or an attack (fx = 1e300 overflowed the estimator).
+FOCAL_RANGE_PER_SIDE = (0.05, 50.0)
+MAX_LENS_COEFFICIENT = 1000.0
 
 ERROR_CODES = (
     "malformed",  # not JSON, not an object, a field missing or of the wrong type
@@ -34,7 +50,12 @@ ERROR_CODES = (
     "not_ready",  # a message that needs hello (or config) first
     "unknown_session",  # hello resuming a session the station does not have
     "out_of_order",  # sequence number or timestamp not increasing
-    "corrupt_image",  # the image payload does not decode
+    "corrupt_image",  # the image payload does not decode, or is not the encoding its header names
+    "bad_timestamp",  # a timestamp outside [0, MAX_TIMESTAMP_S) seconds (NaN, infinite, negative, milliseconds)
+    "bad_camera",  # a camera whose numbers no estimator can use (focal length, principal point, lens)
+    "session_ended",  # hello resuming a session that ended (bye): ended sessions are final
+    "storage_full",  # the station cannot record (disk below its free-space watermark, or writes failing): not recorded, not estimated
+    "estimator_failed",  # the estimator process died on this frame (or is down): the station restarts it
     "internal",  # the station failed; the session goes on
 )
 
@@ -52,6 +73,7 @@ class ProtocolError(LinkError):
 
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
+Timestamp = Annotated[float, Field(allow_inf_nan=False, ge=0.0, lt=MAX_TIMESTAMP_S)]
 Vector3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
 
 
@@ -97,13 +119,32 @@ class Config(_Message):
     @field_validator("camera")
     @classmethod
     def _camera_fits_an_image_frame(cls, camera: CameraModel | None) -> CameraModel | None:
-        if camera is not None and max(camera.width, camera.height) > MAX_IMAGE_SIDE:
-            raise ValueError(f"camera of {camera.width}x{camera.height} pixels; image frames are at most {MAX_IMAGE_SIDE} on a side")
+        if camera is not None:
+            problem = camera_problem(camera)
+            if problem:
+                raise ValueError(problem)
         return camera
 
     @field_serializer("camera")
     def _camera_on_the_wire(self, camera: CameraModel | None) -> dict | None:
         return None if camera is None else {name: value for name, value in asdict(camera).items() if name != "name"}
+
+
+def camera_problem(camera: CameraModel) -> str | None:
+    """Why no estimator can use this camera (see FOCAL_RANGE_PER_SIDE), or None."""
+    side = max(camera.width, camera.height)
+    if side > MAX_IMAGE_SIDE:
+        return f"camera of {camera.width}x{camera.height} pixels; image frames are at most {MAX_IMAGE_SIDE} on a side"
+    low, high = (side * f for f in FOCAL_RANGE_PER_SIDE)
+    for name, value in (("fx", camera.fx), ("fy", camera.fy)):
+        if not low <= value <= high:
+            return f"{name}={value:g} px for a {camera.width}x{camera.height} image; a real lens has {low:g} to {high:g}"
+    if not (0 <= camera.cx <= camera.width and 0 <= camera.cy <= camera.height):
+        return f"principal point ({camera.cx:g}, {camera.cy:g}) is outside the {camera.width}x{camera.height} image"
+    for name, value in camera.coefficients.items():
+        if abs(value) > MAX_LENS_COEFFICIENT:
+            return f"lens coefficient {name}={value:g}; |{name}| <= {MAX_LENS_COEFFICIENT:g} for any real lens"
+    return None
 
 
 class Enable(_Message):
@@ -113,20 +154,20 @@ class Enable(_Message):
 
 class Status(_Message):
     type: Literal["status"] = "status"
-    state: Literal["waiting_config", "starting", "running", "stopped"]
+    state: Literal["waiting_config", "starting", "running", "stopped", "failed"]
     estimating: bool = False
     frames_received: int = 0
     frames_estimated: int = 0
     frames_dropped: int = 0
     fps: float = 0.0
     latency_ms_p50: float = 0.0
-    message: str = ""
+    message: str = Field("", description="a note: the estimator starting, or why the station cannot record now (storage_full)")
 
 
 class ImuTelemetry(_Message):
     type: Literal["telemetry"] = "telemetry"
     kind: Literal["imu"] = "imu"
-    timestamp: Finite
+    timestamp: Timestamp
     gyro_rad_s: Vector3
     accel_m_s2: Vector3
 
@@ -136,7 +177,7 @@ class GpsTelemetry(_Message):
 
     type: Literal["telemetry"] = "telemetry"
     kind: Literal["gps"] = "gps"
-    timestamp: Finite
+    timestamp: Timestamp
     latitude_deg: Finite | None = Field(None, ge=-90, le=90)
     longitude_deg: Finite | None = Field(None, ge=-180, le=180)
     altitude_m: Finite | None = None
@@ -147,7 +188,7 @@ class GpsTelemetry(_Message):
 class BaroTelemetry(_Message):
     type: Literal["telemetry"] = "telemetry"
     kind: Literal["baro"] = "baro"
-    timestamp: Finite
+    timestamp: Timestamp
     pressure_pa: Finite = Field(gt=0)
     altitude_m: Finite | None = None
 
@@ -157,14 +198,14 @@ class RangeTelemetry(_Message):
 
     type: Literal["telemetry"] = "telemetry"
     kind: Literal["range"] = "range"
-    timestamp: Finite
+    timestamp: Timestamp
     distance_m: Finite = Field(gt=0)
 
 
 class WheelTelemetry(_Message):
     type: Literal["telemetry"] = "telemetry"
     kind: Literal["wheel"] = "wheel"
-    timestamp: Finite
+    timestamp: Timestamp
     wheel_speeds_m_s: list[Finite] = Field(default_factory=list, max_length=16)
     forward_speed_m_s: Finite | None = None
     yaw_rate_rad_s: Finite | None = None
@@ -173,7 +214,7 @@ class WheelTelemetry(_Message):
 class WifiTelemetry(_Message):
     type: Literal["telemetry"] = "telemetry"
     kind: Literal["wifi"] = "wifi"
-    timestamp: Finite
+    timestamp: Timestamp
     rssi_dbm: dict[Annotated[str, Field(max_length=64)], Finite] = Field(default_factory=dict, max_length=512)
 
 
@@ -300,7 +341,9 @@ def decode_text(text: str | bytes) -> Message:
     except ValidationError as exc:
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first["loc"]) or kind
-        raise ProtocolError("malformed", f"{kind}: {where}: {first['msg']}") from None
+        code = {"timestamp": "bad_timestamp", "camera": "bad_camera"}.get(str(first["loc"][0]) if first["loc"] else "", "malformed")
+        hint = " (seconds are expected: milliseconds?)" if code == "bad_timestamp" and first["type"] == "less_than" else ""
+        raise ProtocolError(code, f"{kind}: {where}: {first['msg']}{hint}") from None
     except RecursionError:
         raise ProtocolError("malformed", f"{kind}: nested too deeply") from None
 
@@ -352,8 +395,9 @@ def decode_image(data: bytes) -> ImageMessage:
         raise ProtocolError("unknown_type", f"image encoding {encoding_id} (known: {ENCODINGS})", seq)
     if not (0 < width <= MAX_IMAGE_SIDE and 0 < height <= MAX_IMAGE_SIDE):
         raise ProtocolError("malformed", f"image size {width}x{height}", seq)
-    if not math.isfinite(timestamp):
-        raise ProtocolError("malformed", f"image timestamp {timestamp}", seq)
+    if not 0.0 <= timestamp < MAX_TIMESTAMP_S:  # also NaN and infinities
+        hint = " (seconds are expected: milliseconds?)" if timestamp >= MAX_TIMESTAMP_S else ""
+        raise ProtocolError("bad_timestamp", f"image timestamp {timestamp!r} is outside [0, {MAX_TIMESTAMP_S:.0f}) s{hint}", seq)
     payload = data[IMAGE_HEADER.size :]
     if len(payload) != length:
         raise ProtocolError("malformed", f"image payload is {len(payload)} bytes, header says {length}", seq)
@@ -362,10 +406,30 @@ def decode_image(data: bytes) -> ImageMessage:
     return ImageMessage(seq, timestamp, encoding, width, height, payload)
 
 
+def check_image_header(message: ImageMessage) -> None:
+    """A JPEG or PNG payload is that format, of the announced size, 8 bits per sample: read from
+    its header (no decoding), so a lying payload is refused before it is recorded or decoded."""
+    if message.encoding in RAW_CHANNELS:
+        return  # its length was checked against the size
+    header = read_image_header(message.payload)
+    found = image_format(message.payload)
+    if found != message.encoding:
+        raise ProtocolError("corrupt_image", f"payload is {found or 'neither JPEG nor PNG'}, the frame says {message.encoding}", message.seq)
+    if header is None:
+        raise ProtocolError("corrupt_image", f"{message.encoding} header is cut off or malformed", message.seq)
+    if (header.width, header.height) != (message.width, message.height):
+        raise ProtocolError(
+            "corrupt_image", f"{message.encoding} is {header.width}x{header.height}, the frame says {message.width}x{message.height}", message.seq
+        )
+    if header.bit_depth > 8:
+        raise ProtocolError("corrupt_image", f"{header.bit_depth}-bit {message.encoding}; images are 8 bits per sample", message.seq)
+
+
 def image_pixels(message: ImageMessage) -> np.ndarray:
     """The image as grey or BGR uint8; a payload that does not decode to the announced size raises."""
     import cv2
 
+    check_image_header(message)
     if message.encoding in RAW_CHANNELS:
         channels = RAW_CHANNELS[message.encoding]
         pixels = np.frombuffer(message.payload, dtype=np.uint8).reshape(message.height, message.width, channels)
@@ -377,6 +441,8 @@ def image_pixels(message: ImageMessage) -> np.ndarray:
         raise ProtocolError("corrupt_image", f"{message.encoding} payload of {len(message.payload)} bytes does not decode", message.seq)
     if pixels.shape[:2] != (message.height, message.width):
         raise ProtocolError("corrupt_image", f"decodes to {pixels.shape[1]}x{pixels.shape[0]}, header says {message.width}x{message.height}", message.seq)
+    if pixels.dtype != np.uint8 or pixels.ndim not in (2, 3):
+        raise ProtocolError("corrupt_image", f"decodes to {pixels.dtype} of shape {pixels.shape}, not 8-bit grey or colour", message.seq)
     if pixels.ndim == 3 and pixels.shape[2] == 4:
         pixels = cv2.cvtColor(pixels, cv2.COLOR_BGRA2BGR)
     return pixels

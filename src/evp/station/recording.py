@@ -2,14 +2,21 @@
 
 Images keep the bytes the phone sent (CompressedImage for JPEG/PNG, Image for raw), so a replay
 feeds the estimator exactly what it saw live. Typed topics (Imu, NavSatFix, FluidPressure,
-PoseStamped) open in Foxglove; messages without a standard type (wheel, WiFi, config, enable,
-logs) are kept verbatim as JSON strings on ``/evp/messages``. Files are written unchunked and
-flushed per message, so a killed station leaves a readable file; ``repair`` gives it a summary.
+PoseStamped, and each pose as the ``evp_map -> camera`` transform on ``/tf``, where Foxglove's 3-D
+panel places the camera and its images) open in Foxglove; messages without a standard type
+(wheel, WiFi, config, enable, logs) are kept verbatim as JSON strings on ``/evp/messages``.
+
+While a session is live its file is a journal: unchunked and flushed per message, so a killed
+station loses nothing it acknowledged (``repair`` closes such a file). When the session closes,
+the journal is rewritten (:func:`compact`) chunked, zstd-compressed and indexed, what Foxglove and
+the ``mcap`` library's indexed reader seek in, and swapped in atomically. Files and their folder
+are readable by the station's user only.
 """
 
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -41,6 +48,9 @@ TOPIC_IMAGE_COMPRESSED = "/camera/image/compressed"
 TOPIC_IMAGE_RAW = "/camera/image"
 TOPIC_CAMERA_INFO = "/camera/camera_info"
 TOPIC_POSE = "/evp/pose"
+TOPIC_TF = "/tf"
+TF = "tf2_msgs/msg/TFMessage"
+MAP_FRAME, CAMERA_FRAME = "evp_map", "camera"
 TOPIC_MESSAGES = "/evp/messages"
 RAW_ROS_ENCODING = {"gray8": "mono8", "bgr8": "bgr8", "rgb8": "rgb8"}
 
@@ -57,11 +67,13 @@ class SessionRecording:
     def __init__(self, path: Path):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.path.parent.chmod(0o700)
         earlier = None
         if self.path.exists():
             earlier = self.path.with_suffix(".mcap.old")
             self.path.replace(earlier)
         self._recorder = McapRecorder(self.path, durable=True)
+        self.path.chmod(0o600)
         self.carried_over = 0  # messages copied from the earlier file
         if earlier is not None:
             for message in read_messages(earlier):
@@ -108,11 +120,34 @@ class SessionRecording:
         types = ROS2.types
         position = types["geometry_msgs/msg/Point"](x=pose.t[0], y=pose.t[1], z=pose.t[2])
         orientation = types["geometry_msgs/msg/Quaternion"](w=pose.q[0], x=pose.q[1], y=pose.q[2], z=pose.q[3])
-        msg = types[POSE](header=_header(pose.timestamp, "evp_map"), pose=types["geometry_msgs/msg/Pose"](position=position, orientation=orientation))
+        msg = types[POSE](header=_header(pose.timestamp, MAP_FRAME), pose=types["geometry_msgs/msg/Pose"](position=position, orientation=orientation))
         self._recorder.write(TOPIC_POSE, POSE, msg, sent_at)
+        translation = types["geometry_msgs/msg/Vector3"](x=pose.t[0], y=pose.t[1], z=pose.t[2])
+        transform = types["geometry_msgs/msg/TransformStamped"](
+            header=_header(pose.timestamp, MAP_FRAME),
+            child_frame_id=CAMERA_FRAME,
+            transform=types["geometry_msgs/msg/Transform"](translation=translation, rotation=orientation),
+        )
+        self._recorder.write(TOPIC_TF, TF, types[TF](transforms=[transform]), sent_at)
 
     def close(self) -> None:
+        """Finish the journal, then compact it (chunked, compressed, indexed)."""
         self._recorder.close()
+        compact(self.path)
+
+
+def compact(path: Path) -> None:
+    """Rewrite a recording chunked, zstd-compressed and indexed, replacing it atomically: a station
+    killed meanwhile leaves the journal whole (and a ``.mcap.tmp`` that start-up removes)."""
+    path = Path(path)
+    temporary = path.with_suffix(".mcap.tmp")
+    with McapRecorder(temporary) as recorder:  # the mcap writer's defaults: 1 MiB zstd chunks, every index
+        temporary.chmod(0o600)
+        for message in read_messages(path):
+            recorder.write_raw(message)
+    with temporary.open("rb") as handle:
+        os.fsync(handle.fileno())
+    temporary.replace(path)
 
 
 def read_messages(path: Path) -> Iterator[tuple[Schema, Channel, Message]]:

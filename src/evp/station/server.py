@@ -34,7 +34,7 @@ from evp import __version__
 from evp.config import validation_message
 from evp.io.trajectory import tum_text
 from evp.station.base_station import Station
-from evp.station.protocol import Error, Hello, ProtocolError, Welcome, decode_text, encode
+from evp.station.protocol import SESSION_ID, Error, Hello, ProtocolError, Welcome, decode_text, encode
 from evp.station.replay import live_poses, tracked_trajectory
 
 HELLO_TIMEOUT_S = 10.0
@@ -178,9 +178,16 @@ async def command(request: Request) -> JSONResponse:
     return JSONResponse({"status": session.status().model_dump()})
 
 
+def _no_such_session(session_id: str) -> JSONResponse | None:
+    """A 404 for anything that is not a session id: a URL's text never reaches a file name or a header."""
+    return None if SESSION_ID.fullmatch(session_id) else JSONResponse({"error": "not a session id"}, status_code=404)
+
+
 async def trajectory(request: Request) -> Response:
     station: Station = request.app.state.station
     session_id = request.path_params["session_id"]
+    if refused := _no_such_session(session_id):
+        return refused
     poses = await asyncio.to_thread(live_poses, station.store, session_id)
     headers = {"Content-Disposition": f'attachment; filename="{session_id}.tum"'}
     return PlainTextResponse(tum_text(tracked_trajectory(poses)), headers=headers)
@@ -188,6 +195,8 @@ async def trajectory(request: Request) -> Response:
 
 async def recording(request: Request) -> Response:
     station: Station = request.app.state.station
+    if refused := _no_such_session(request.path_params["session_id"]):
+        return refused
     row = await asyncio.to_thread(station.store.session, request.path_params["session_id"])
     if row is None or not row["mcap_path"] or not Path(row["mcap_path"]).is_file():
         return JSONResponse({"error": "no recording for that session"}, status_code=404)

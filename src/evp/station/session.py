@@ -2,13 +2,17 @@
 
 Transport-free: the WebSocket handler passes messages in and gives it a ``send`` callable for the
 replies (``None`` while the link is down; poses computed meanwhile are still recorded). Every
-message that parses is recorded before anything else happens to it, so bad input, a dropped link
-or a failing estimator never loses what was received.
+message is checked, then recorded, then handled: bad input is refused without filling the disk,
+and a dropped link or a failing estimator never loses what was received. Every frame gets exactly
+one answer (a pose, ``dropped`` or an error): the estimator process dying answers its frames in
+flight with ``estimator_failed`` and a supervisor starts a new one.
 """
 
 from __future__ import annotations
 
+import asyncio
 import json
+import logging
 import time
 from collections import deque
 from collections.abc import Callable
@@ -34,6 +38,7 @@ from evp.station.protocol import (
     ProtocolError,
     Status,
     Telemetry,
+    check_image_header,
     decode_image,
     decode_text,
     encode,
@@ -42,6 +47,8 @@ from evp.station.protocol import (
 from evp.station.recording import SessionRecording
 from evp.station.store import SessionStore
 from evp.types import CameraModel
+
+log = logging.getLogger(__name__)
 
 
 class StationHooks(Protocol):
@@ -56,6 +63,7 @@ class StationHooks(Protocol):
     def on_new_map(self, session: LiveSession) -> None: ...
     def on_navigation(self, session: LiveSession, state: dict) -> None: ...
     def on_gps(self, session: LiveSession, fix: GpsTelemetry) -> None: ...
+    def storage_problem(self) -> str | None: ...
 
 
 @dataclass
@@ -96,8 +104,9 @@ class LiveSession:
         self._last_frame_time = -np.inf
         self._last_telemetry_time: dict[str, float] = {}
         self._received_at: dict[int, float] = {}
-        self._frames: dict[int, ImageMessage] = {}
+        self._frames: dict[int, ImageMessage] = {}  # sent to the estimator, not answered yet
         self._telemetry_batch: list = []  # records for the estimator, sent with the next frame
+        self._estimator_deaths = 0  # since the last pose or config (the supervisor's count)
 
     # --- link ---------------------------------------------------------------------------------
 
@@ -140,8 +149,11 @@ class LiveSession:
         self.station.on_event(self, row)
 
     def refuse(self, error: ProtocolError) -> None:
-        """Tell the client, log the event; the session goes on."""
+        """Tell the client, log the event (storage_full once for the station, not per message
+        into the store that cannot write); the session goes on."""
         self.reply(Error(code=error.code, message=error.message, seq=error.seq))
+        if error.code == "storage_full":
+            return
         self.event("error", error.code, error.message if error.seq is None else f"frame {error.seq}: {error.message}")
 
     # --- incoming -----------------------------------------------------------------------------
@@ -153,12 +165,17 @@ class LiveSession:
             self.recording.text(text[:4096], now)  # kept (truncated) as evidence
             self.refuse(exc)
             return
-        if not isinstance(message, Telemetry):  # telemetry is recorded once its order is checked
-            self.recording.text(text, now)
         try:
+            if not isinstance(message, Telemetry):  # telemetry is recorded once its order is checked
+                self.recording.text(text, now)
             self._dispatch(message, text, now)
         except ProtocolError as exc:
             self.refuse(exc)
+        except OSError as exc:  # the recording's disk
+            self.refuse(ProtocolError("storage_full", f"{message.type} not recorded: {exc}"))
+        except Exception as exc:  # a bug: the client hears of it, the session goes on
+            log.exception("session %s: %s message failed", self.id, message.type)
+            self.refuse(ProtocolError("internal", f"{message.type}: {exc.__class__.__name__}: {exc}"))
 
     def _dispatch(self, message, text: str, now: float) -> None:
         if isinstance(message, Telemetry):
@@ -181,8 +198,10 @@ class LiveSession:
     def _telemetry(self, message, text: str, now: float) -> None:
         last = self._last_telemetry_time.get(message.kind, -np.inf)
         if message.timestamp < last:
-            self.recording.text(text, now)
             raise ProtocolError("out_of_order", f"{message.kind} telemetry at t={message.timestamp!r} is older than the last one (t={last!r})")
+        problem = self.station.storage_problem()
+        if problem:
+            raise ProtocolError("storage_full", f"{message.kind} telemetry not recorded: {problem}")
         self._last_telemetry_time[message.kind] = message.timestamp
         self.recording.telemetry(message, text, now)
         data = message.model_dump(exclude={"type", "kind", "timestamp"})
@@ -200,9 +219,10 @@ class LiveSession:
             self._telemetry_batch.append(telemetry_record(message))
 
     def _config(self, message: Config, now: float) -> None:
+        self._estimator_deaths = 0  # the mobile station's config restarts an estimator the supervisor gave up on
         self.store.insert("settings", session_id=self.id, t=now, source="mobile", data_json=encode(message))
         navigation = (message.T_body_cam or self.T_body_cam, message.answers or self.answers)
-        changed = navigation != (self.T_body_cam, self.answers)
+        changed = navigation != (self.T_body_cam, self.answers) or self.worker is None  # a config restarts a failed estimator
         self.T_body_cam, self.answers = navigation
         if message.camera is None or replace(message.camera, name=self.device or "mobile") == self.camera:
             if changed and self.camera is not None:
@@ -217,23 +237,29 @@ class LiveSession:
         self.restart_estimator()
 
     def on_binary(self, data: bytes, now: float) -> None:
+        """Checked (header, order, size, the image's own header, the disk), recorded, then
+        estimated: a refused frame is neither recorded nor counted, and gets its error."""
         try:
             message = decode_image(data)
-        except ProtocolError as exc:
-            self.refuse(exc)
-            return
-        self.recording.image(message, now)
-        self.counters.frames_received += 1
-        try:
             self._check_frame(message)
+            problem = self.station.storage_problem()
+            if problem:
+                raise ProtocolError("storage_full", f"frame not recorded: {problem}", message.seq)
+            self.recording.image(message, now)
         except ProtocolError as exc:
-            self._frame_row(message, now, estimated=False)
             self.refuse(exc)
             return
+        except OSError as exc:  # the recording's disk
+            self.refuse(ProtocolError("storage_full", f"frame not recorded: {exc}", message.seq))
+            return
+        self.counters.frames_received += 1
         self._last_seq, self._last_frame_time = message.seq, message.timestamp
         if self.camera is None or not self.estimating or self.worker is None:
             self._frame_row(message, now, estimated=False)
-            self._drop(message, "not_configured" if self.camera is None else "estimation_off")
+            if self.camera is not None and self.estimating:  # the supervisor gave up: a config restarts it
+                self.refuse(ProtocolError("estimator_failed", "the estimator is down (it kept failing); send a config to start a new one", message.seq))
+            else:
+                self._drop(message, "not_configured" if self.camera is None else "estimation_off")
             return
         self._received_at[message.seq] = now
         self._frames[message.seq] = message
@@ -256,6 +282,7 @@ class LiveSession:
             raise ProtocolError(
                 "malformed", f"image is {message.width}x{message.height}, the configured camera is {self.camera.width}x{self.camera.height}", message.seq
             )
+        check_image_header(message)
 
     def _frame_row(self, message: ImageMessage, received_at: float, estimated: bool) -> None:
         self.store.insert(
@@ -279,8 +306,6 @@ class LiveSession:
 
     def restart_estimator(self) -> None:
         """A fresh estimator (new map) for the current camera; the old one finishes in the background."""
-        import asyncio
-
         old, self.worker = self.worker, None
         if old is not None:
             asyncio.get_running_loop().create_task(old.close())
@@ -307,17 +332,29 @@ class LiveSession:
         self.reply(self.status())
         self.station.on_status(self)
 
+    def _take(self, seq: int | None) -> tuple[ImageMessage, float] | None:
+        """A frame in flight, taken to be answered: each is taken once, so answered once."""
+        if seq is None or seq not in self._frames:
+            return None
+        return self._frames.pop(seq), self._received_at.pop(seq)
+
     def _worker_pose(self, pose: Pose) -> None:
         now = time.time()
-        message = self._frames.pop(pose.seq)
-        received_at = self._received_at.pop(pose.seq)
+        taken = self._take(pose.seq)
+        if taken is None:  # already answered (its estimator was replaced meanwhile)
+            return
+        message, received_at = taken
+        self._estimator_deaths = 0
         latency_ms = (now - received_at) * 1000.0
         self._frame_row(message, received_at, estimated=True)
         self.counters.frames_estimated += 1
         self.counters.latencies_ms.append(latency_ms)
         self.counters.estimated_times.append(now)
         self.reply(pose)
-        self.recording.pose(pose, now)
+        try:
+            self.recording.pose(pose, now)
+        except OSError as exc:  # the pose is in the database; the operator hears of the disk
+            self.event("error", "storage_full", f"pose {pose.seq} not in the recording: {exc}")
         t, q = pose.t, pose.q
         self.store.insert(
             "poses", session_id=self.id, seq=pose.seq, timestamp=pose.timestamp, tx=t[0], ty=t[1], tz=t[2], qw=q[0], qx=q[1], qy=q[2], qz=q[3],
@@ -336,25 +373,43 @@ class LiveSession:
             self.station.on_navigation(self, payload)
 
     def _worker_error(self, code: str, text: str, seq: int | None) -> None:
-        if seq is not None and seq in self._frames:
-            self._frame_row(self._frames.pop(seq), self._received_at.pop(seq), estimated=False)
-        self.refuse(ProtocolError(code, text, seq))
+        taken = self._take(seq)
+        if taken is not None:
+            self._frame_row(*taken, estimated=False)
+        if seq is None or taken is not None:
+            self.refuse(ProtocolError(code, text, seq))
 
     def _worker_dropped(self, message: ImageMessage) -> None:
-        self._frame_row(self._frames.pop(message.seq), self._received_at.pop(message.seq), estimated=False)
-        self._drop(message, "stale")
+        taken = self._take(message.seq)
+        if taken is not None:
+            self._frame_row(*taken, estimated=False)
+            self._drop(message, "stale")
 
     def _worker_exit(self, reason: str) -> None:
+        """The supervisor: the frames in flight get their error, the operator an event, and a new
+        estimator (a new map) starts, unless it keeps dying without a pose in between."""
         self.worker = None
-        self.event("error", "internal", f"{reason}; send a config to start a new one")
-        for seq in list(self._frames):
-            self._frame_row(self._frames.pop(seq), self._received_at.pop(seq), estimated=False)
+        for seq in sorted(self._frames):
+            message, received_at = self._take(seq)
+            self._frame_row(message, received_at, estimated=False)
+            self.reply(Error(code="estimator_failed", message=f"{reason} on this frame; a new estimator is starting", seq=seq))
+        self._estimator_deaths += 1
+        limit = self.station.settings.station.max_estimator_restarts
+        if self._estimator_deaths > limit:
+            self.event("error", "estimator_failed", f"{reason}, {self._estimator_deaths} times without a pose: left down; a config starts a new one")
+            self.reply(self.status())
+            self.station.on_status(self)
+            return
+        self.event("error", "estimator_restarted", f"{reason}: restarted with a new map ({self._estimator_deaths} of {limit} restarts)")
+        self.restart_estimator()
 
     # --- status -------------------------------------------------------------------------------
 
     def status(self) -> Status:
         if self.camera is None:
             state = "waiting_config"
+        elif self.worker is None and self._estimator_deaths > self.station.settings.station.max_estimator_restarts:
+            state = "failed"
         elif self.worker is None or not self.worker.ready:
             state = "starting"
         else:
@@ -368,6 +423,7 @@ class LiveSession:
             frames_dropped=c.frames_dropped,
             fps=round(c.fps(time.time()), 2),
             latency_ms_p50=round(c.latency_p50(), 2),
+            message=self.station.storage_problem() or "",
         )
 
     def count_columns(self) -> dict:
@@ -375,10 +431,11 @@ class LiveSession:
         return {"frames_received": c.frames_received, "frames_estimated": c.frames_estimated, "frames_dropped": c.frames_dropped}
 
     async def close(self, status: str) -> None:
-        """Finish the estimator (frames in flight get their poses recorded) and the recording."""
+        """Finish the estimator (frames in flight get their poses recorded) and the recording
+        (compacted: chunked, compressed, indexed)."""
         self._send_telemetry()
         if self.worker is not None:
             await self.worker.close()
             self.worker = None
-        self.recording.close()
+        await asyncio.to_thread(self.recording.close)
         self.store.update_session(self.id, status=status, ended_at=time.time(), **self.count_columns())

@@ -2,16 +2,22 @@
 
 SQLite under the data folder by default; any SQLAlchemy URL (e.g. PostgreSQL) with ``--db``.
 Writes go through one thread that commits whatever is queued each time it wakes, so the event
-loop never waits on the disk and a killed client loses nothing that was received.
+loop never waits on the disk and a killed client loses nothing that was received. A commit that
+fails (a full disk, a database that went away) is kept and retried until it succeeds; meanwhile
+:attr:`SessionStore.problem` says why, and ``on_problem`` is told when writing fails and when it
+works again, so the station can refuse new recording and tell the operator.
 """
 
 from __future__ import annotations
 
+import logging
+import os
 import queue
 import threading
 import time
 import uuid
-from collections.abc import Iterable
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from sqlalchemy import (
@@ -31,6 +37,15 @@ from sqlalchemy import (
     update,
 )
 from sqlalchemy.engine import Engine
+from sqlalchemy.exc import DBAPIError, OperationalError
+
+log = logging.getLogger(__name__)
+
+# A failed commit is retried after RETRY_FIRST_S, doubling up to RETRY_MAX_S: a disk that was
+# full is written within 5 s of being freed, and a database that stays down costs one attempt
+# every 5 s, not a busy loop.
+RETRY_FIRST_S = 0.1
+RETRY_MAX_S = 5.0
 
 metadata = MetaData()
 
@@ -41,7 +56,7 @@ sessions = Table(
     Column("device", String(128), nullable=False, default=""),
     Column("started_at", Float, nullable=False),
     Column("ended_at", Float),
-    Column("status", String(16), nullable=False),  # live | ended | interrupted
+    Column("status", String(16), nullable=False),  # live | ended | interrupted | failed (its recording could not be opened)
     Column("camera_json", Text),
     Column("mcap_path", Text),
     Column("frames_received", Integer, nullable=False, default=0),
@@ -115,9 +130,13 @@ TABLES = {table.name: table for table in metadata.sorted_tables}
 
 
 def make_engine(url: str) -> Engine:
-    """An engine with the schema created; SQLite gets WAL so readers never block the writer."""
+    """An engine with the schema created; SQLite gets WAL so readers never block the writer, and
+    a new database file is readable by its owner only (SQLite gives its journal files the same)."""
     engine = create_engine(url, future=True)
     if engine.dialect.name == "sqlite":
+        database = engine.url.database
+        if database and database != ":memory:" and not Path(database).exists():
+            os.close(os.open(database, os.O_CREAT | os.O_WRONLY, 0o600))
 
         @event.listens_for(engine, "connect")
         def _sqlite_pragmas(connection, _record) -> None:
@@ -131,12 +150,26 @@ def make_engine(url: str) -> Engine:
     return engine
 
 
-class SessionStore:
-    """Queued writes (one committing thread) and direct reads."""
+def _retryable(exc: Exception) -> bool:
+    """A failure of the database or its disk, not of the rows: the same commit may work later."""
+    return isinstance(exc, OperationalError | OSError) or (isinstance(exc, DBAPIError) and exc.connection_invalidated)
 
-    def __init__(self, url: str):
+
+def _first_line(exc: Exception) -> str:
+    return f"{exc.__class__.__name__}: {(str(exc).splitlines() or [''])[0][:200]}"
+
+
+class SessionStore:
+    """Queued writes (one committing thread that never gives up on a row) and direct reads."""
+
+    def __init__(self, url: str, on_problem: Callable[[str | None], None] | None = None):
+        """``on_problem(text)`` is called (on the writer's thread) when commits start failing, and
+        ``on_problem(None)`` when one works again."""
         self.url = url
         self.engine = make_engine(url)
+        self.on_problem = on_problem
+        self.problem: str | None = None  # why writes are failing now; None while they work
+        self.rows_refused = 0  # rows the database refused for good (a bug: logged, never silently)
         self._queue: queue.Queue = queue.Queue()
         self._thread = threading.Thread(target=self._write_loop, name="evp-db-writer", daemon=True)
         self._thread.start()
@@ -165,17 +198,65 @@ class SessionStore:
         self.engine.dispose()
 
     def _write_loop(self) -> None:
+        """Commit what is queued; a batch that fails stays first in line (newer writes join it)
+        and is retried, so rows are written in order and none is dropped while the database or
+        its disk fails."""
+        batch: list = []
+        delay = RETRY_FIRST_S
+        stop = False
         while True:
-            item = self._queue.get()
-            batch = [item]
+            if not batch:
+                batch.append(self._queue.get())
             while not self._queue.empty():
                 batch.append(self._queue.get())
-            stop = None in batch
-            self._commit(b for b in batch if b is not None)
+            stop = stop or None in batch
+            batch = [b for b in batch if b is not None]
+            try:
+                self._commit_or_isolate(batch)
+            except Exception as exc:  # noqa: BLE001 - whatever the database says, the writer goes on
+                self._set_problem(f"database writes failing ({len(batch)} rows waiting): {_first_line(exc)}")
+                try:  # wait, collecting newer writes; a close does not cut the retries short
+                    batch.append(self._queue.get(timeout=delay))
+                except queue.Empty:
+                    pass
+                delay = min(2 * delay, RETRY_MAX_S)
+                continue
+            delay = RETRY_FIRST_S
+            self._set_problem(None)
             if stop:
                 return
 
-    def _commit(self, batch: Iterable[tuple]) -> None:
+    def _set_problem(self, text: str | None) -> None:
+        changed = (text is None) != (self.problem is None)
+        self.problem = text
+        if changed:
+            log.warning("%s", text or "database writes work again")
+            if self.on_problem is not None:
+                self.on_problem(text)
+
+    def _commit_or_isolate(self, batch: list[tuple]) -> None:
+        """One transaction for the batch (emptied once written); if the database refuses the rows
+        themselves, not for its disk or link, each row alone, so one bad row holds back no other."""
+        try:
+            self._commit(batch)
+        except Exception as exc:  # noqa: BLE001
+            if _retryable(exc):
+                raise
+            while batch:
+                try:
+                    self._commit(batch[:1])
+                except Exception as row_exc:  # noqa: BLE001
+                    if _retryable(row_exc):
+                        raise
+                    self._refused(batch[0], row_exc)
+                del batch[0]
+        batch.clear()
+
+    def _refused(self, row: tuple, exc: Exception) -> None:
+        self.rows_refused += 1
+        log.error("database refused a %s of %s: %s", row[0], row[1], _first_line(exc))
+
+    def _commit(self, batch: list[tuple]) -> None:
         with self.engine.begin() as connection:
             for kind, table, values, session_id in batch:
                 if kind == "insert":

@@ -36,7 +36,18 @@ from evp.types import Frame
 IMAGE_TYPES = {IMAGE, COMPRESSED_IMAGE}
 
 
+# what each file kind starts with: rosbags reads past a wrong one into a UnicodeDecodeError
+MAGIC = {".bag": b"#ROSBAG V2.0\n", ".mcap": b"\x89MCAP0\r\n"}
+
+
 def _open(path: Path) -> AnyReader:
+    magic = MAGIC.get(path.suffix.lower()) if path.is_file() else None
+    if magic is not None:
+        with path.open("rb") as handle:
+            start = handle.read(len(magic))
+        if start != magic:
+            kind = "ROS 1 bag" if path.suffix.lower() == ".bag" else "MCAP file"
+            raise AnyReaderError(f"not a {kind} (it starts with {start[:8]!r}, not {magic!r})")
     return AnyReader([path], default_typestore=ROS2)
 
 

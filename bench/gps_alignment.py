@@ -1,14 +1,15 @@
 """Seed 002 (visual odometry aligned to GPS and barometer) on simulated flights shaped like its
 Table I, and the GPS spoofing/jamming detector's figures.
 
-Each flight is rendered at 10 fps (the GPS rate the paper down-sampled its video to), run
+Each flight is rendered at 10 fps (the GPS rate the paper down-sampled its video to; the
+flights of `evp experiment seed002-tables2-5`, evp/experiments/seed002_flights.py), run
 through EVP's visual odometry, aligned to GPS over the 70 s after reaching the target altitude,
 and scored against the true position (and against GPS, as the paper does) on the rest of the
 flight. The alignment alone is also scored on a modelled visual track (truth in its own frame,
 with 0.5 % scale and heading errors); the detector on seeded flights with pull-off and jump
 spoofing, clean flights and a jamming outage.
 
-Usage: python bench/gps_alignment.py [--flights A,B,...] [--keep DIR] [--skip-rendered]
+Usage: python bench/gps_alignment.py [--flights A,B,...] [--skip-rendered]
 
 Prints three tables: rendered flights (aligned share, mean and largest error against truth and
 GPS near the target altitude and overall, wall time), modelled tracks (errors, model chosen) and
@@ -20,34 +21,17 @@ shared data.
 from __future__ import annotations
 
 import argparse
-import shutil
-import sys
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 from results import Results
 
-from evp.config import AlignmentSettings, MonitorSettings, Settings
-from evp.eval.flight_report import flight_summary
+from evp.config import AlignmentSettings
 from evp.eval.statistics import error_statistics
-from evp.fusion.flight import process_flight
-from evp.fusion.gps_alignment import resample
-from evp.io.registry import open_dataset
-from evp.io.trajectory import read_trajectory
-from evp.pipeline import run_dataset
-from evp.run_setup import make_estimator
-from evp.sim.generate import generate
+from evp.experiments.seed002_flights import TABLE_I, flight_params, fly
+from evp.sim.monitor_trials import drifting_track, first, monitor_run
 from evp.sim.scenarios import SimOptions
 from evp.sim.sensors import GpsConfig
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the monitor trials the tests use
-from tests.fusion.monitor_trials import drifting_track, first, monitor_run  # noqa: E402
-
-# seed 002, Table I: duration (s), target altitude (m); speed 4-8 m/s
-TABLE_I = {"A": (325, 81), "B": (356, 61), "C": (388, 31), "D": (103, 109), "E": (269, 81), "F": (192, 83), "G": (210, 30)}
-
 
 FLIGHT_COLUMNS = [
     ("flight", "{flight}"),
@@ -75,38 +59,26 @@ MODEL_COLUMNS = [
 DETECTOR_COLUMNS = [("test", "{test}"), ("result", "{result}"), ("target", "{target}")]
 
 
-def flight_record(name: str, duration: float, altitude: float, workdir: Path) -> dict:
-    speed = 4.0 + (ord(name) % 5)  # 4-8 m/s, fixed per flight
-    options = SimOptions(duration_s=duration, altitude_m=altitude, speed_m_s=speed, fps=10.0, relief=False, seed=ord(name))
-    data = workdir / name
+def flight_record(name: str, quick: bool = False) -> dict:
+    """One Table I flight as ``evp experiment seed002-tables2-5`` runs it (3D+baro row)."""
+    params = flight_params(name, quick)
     start = time.perf_counter()
-    generate("drone-flight", options, data, workers=2)
-    dataset = open_dataset(data)
-    segments = run_dataset(dataset, make_estimator(dataset.camera, Settings(), dataset)).segments()
-    at_altitude = duration - 2 * altitude / 3.0  # climb and descent at 3 m/s
-    window = min(70.0, 0.5 * at_altitude)  # the paper's 70 s, shortened for short flights (D: 103 s at 109 m)
-    result = process_flight(dataset.gps, dataset.baro, segments, AlignmentSettings(target_altitude_m=altitude + 0.3, window_s=window), MonitorSettings())
-    truth = read_trajectory(data / "groundtruth_cam0_tum.txt")
-    after = result.alignment.aligned.timestamps > result.alignment.window[1] - result.alignment.clock_offset_s
-    true_xy, ok = resample(truth, result.alignment.aligned.timestamps[after], 1.0)
-    errors = np.linalg.norm(result.alignment.aligned.positions[after][ok, :2] - true_xy[ok, :2], axis=1)
-    near = np.abs(result.alignment.aligned.positions[after][ok, 2] - altitude) < 2.0
-    vs_truth = error_statistics(errors[near]) if near.any() else {"mean": float("nan"), "max": float("nan")}
-    vs_gps = flight_summary(result)
-    tracked = len(result.alignment.aligned) / max(1, dataset.num_frames)
-    near_gps = vs_gps["near_target_altitude"] or {"mean": float("nan"), "max": float("nan")}
+    record = fly(**params)
+    mode = record["3d+baro"]
+    nan = {"mean": float("nan"), "max": float("nan")}
+    near_truth, near_gps = mode["near_target_vs_truth"] or nan, mode["near_target"] or nan
     return {
         "flight": name,
-        "duration_s": duration,
-        "altitude_m": altitude,
-        "speed_m_s": speed,
-        "aligned_percent": 100 * tracked,
-        "near_mean_vs_truth_m": vs_truth["mean"],
-        "near_max_vs_truth_m": vs_truth["max"],
+        "duration_s": params["duration_s"],
+        "altitude_m": params["altitude_m"],
+        "speed_m_s": params["speed_m_s"],
+        "aligned_percent": record["tracked_percent"],
+        "near_mean_vs_truth_m": near_truth["mean"],
+        "near_max_vs_truth_m": near_truth["max"],
         "near_mean_vs_gps_m": near_gps["mean"],
         "near_max_vs_gps_m": near_gps["max"],
-        "all_mean_vs_gps_m": vs_gps["mean"],
-        "all_max_vs_gps_m": vs_gps["max"],
+        "all_mean_vs_gps_m": mode["whole"]["mean"],
+        "all_max_vs_gps_m": mode["whole"]["max"],
         "wall_s": time.perf_counter() - start,
     }
 
@@ -159,7 +131,6 @@ def model_track_record(name: str, duration: float, altitude: float, drift_fracti
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--flights", default=",".join(TABLE_I))
-    parser.add_argument("--keep", type=Path, default=None)
     parser.add_argument("--skip-rendered", action="store_true", help="only the modelled-track and detector tables (fast)")
     args = parser.parse_args()
     command = f"python bench/gps_alignment.py --flights {args.flights}" + (" --skip-rendered" if args.skip_rendered else "")
@@ -169,18 +140,14 @@ def main() -> None:
     print(caption)
     flights = results.table("rendered", FLIGHT_COLUMNS, key=["flight"], caption=caption)
     print(flights.header())
-    workdir = args.keep or Path(tempfile.mkdtemp(prefix="evp-align-bench-"))
     for name in [] if args.skip_rendered else args.flights.split(","):
-        duration, altitude = TABLE_I[name]
-        print(flights.add(flight_record(name, duration, altitude, workdir)), flush=True)
-    if args.keep is None:
-        shutil.rmtree(workdir)
+        print(flights.add(flight_record(name)), flush=True)
     caption = "Alignment alone: the visual track modelled as truth (own frame, scale) with 0.5 % scale and heading errors"
     print(f"\n{caption}")
     modelled = results.table("modelled", MODEL_COLUMNS, key=["flight"], caption=caption)
     print(modelled.header())
     for name in args.flights.split(","):
-        duration, altitude = TABLE_I[name]
+        duration, _, altitude = TABLE_I[name]
         print(modelled.add(model_track_record(name, duration, altitude)), flush=True)
     caption = "Spoofing / jamming detector (seeded flights, visual track with 0.5 % scale and heading errors, GPS 1.5 m Gauss-Markov + white)"
     print(f"\n{caption}")

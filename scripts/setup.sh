@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Create .venv (once) and install EVP into it, at the exact versions of constraints.txt, with every
-# optional part (the station, MAVLink output, the PostgreSQL driver) and the extras given as
+# optional part (the station, MAVLink output, the PostgreSQL driver, the Dask client) and the extras given as
 # arguments (e.g. "test").
 # Works on a fresh Debian machine that has only Python 3.11+: installs python3-venv if it is missing.
 set -euo pipefail
@@ -19,6 +19,6 @@ if [ ! -x .venv/bin/python ]; then
     fi
   fi
 fi
-extras=$(IFS=,; echo "station,mavlink,postgres${*:+,$*}")
+extras=$(IFS=,; echo "station,mavlink,postgres,cluster${*:+,$*}")
 .venv/bin/python -m pip install --quiet --upgrade pip
 .venv/bin/python -m pip install --quiet -c constraints.txt -e ".[${extras}]"

@@ -706,3 +706,37 @@ def write_settings(settings: Settings, directory: Path) -> Path:
     path = directory / "settings.yaml"
     path.write_text(settings_yaml(settings))
     return path
+
+
+def _field_names(model: type[BaseModel], prefix: str = "") -> list[str]:
+    names = []
+    for name, info in model.model_fields.items():
+        kind = info.annotation
+        if isinstance(kind, type) and issubclass(kind, BaseModel):
+            names.extend(_field_names(kind, f"{prefix}{name}."))
+        else:
+            names.append(prefix + name)
+    return names
+
+
+def with_overrides(settings: Settings, overrides: dict[str, object]) -> Settings:
+    """``settings`` with dotted names set (``{"orb.n_features": 500}``, as ``evp sweep --set``
+    gives them), validated as a settings file would be; an unknown name is refused with the
+    closest known ones. The settings given before stay given (``resolve_settings`` looks)."""
+    import difflib
+
+    known = _field_names(Settings)
+    data = settings.model_dump(exclude_unset=True)
+    for name, value in overrides.items():
+        if name not in known:
+            close = difflib.get_close_matches(name, known, n=3, cutoff=0.6)
+            raise ConfigError(f"unknown setting {name!r}" + (f"; did you mean {', '.join(close)}?" if close else " (evp config dump lists them)"))
+        *sections, field = name.split(".")
+        target = data
+        for section in sections:
+            target = target.setdefault(section, {})
+        target[field] = value
+    try:
+        return Settings.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(f"setting {validation_message(exc)}") from exc

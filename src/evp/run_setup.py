@@ -193,3 +193,32 @@ def navigation_on_refined(dataset: Dataset, settings: Settings, refined: Traject
         return None
     frames = (Frame(float(t), _NO_IMAGE, i) for i, t in enumerate(dataset.frame_times))
     return run_frames(poses, frames, stages=[stage], telemetry=dataset.telemetry()), stage
+
+
+def estimate(
+    dataset: Dataset, settings: Settings, advance=lambda frames: None, realtime_speed: float | None = None
+) -> tuple[RunResult, NavigationStage | None, Estimator]:
+    """What ``evp run`` computes on ``dataset`` with concrete ``settings`` (:func:`resolve_settings`):
+    the estimator and its navigation stage over every frame (``realtime_speed``: paced as the base
+    station would be, dropping frames; a real-time replay has no spare time for the reference ORB).
+    Returns the run, the stage and the estimator (:func:`refine_and_write` finishes with them)."""
+    from evp.pipeline import run_dataset
+
+    estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
+    navigation = navigation_stage(dataset, settings, estimator)
+    reference_orb = None if realtime_speed is not None else settings.orb.n_features
+    result = run_dataset(dataset, estimator, advance, reference_orb, realtime_speed, stages=[navigation] if navigation is not None else [])
+    return result, navigation, estimator
+
+
+def refine_and_write(result: RunResult, navigation: NavigationStage | None, estimator: Estimator, dataset: Dataset, settings: Settings, out) -> dict:
+    """The end of ``evp run``: the refinement after the last frame (a survey adjustment or a global
+    bundle adjustment; seconds), the navigation stage again on the refined trajectory when the
+    settings ask for it, and the outputs in ``out``; returns the metrics written."""
+    from evp.io.run_outputs import write_outputs
+
+    result.final_trajectory()
+    refined_navigation = None
+    if navigation is not None and settings.navigation.refine_offline and result.refined is not None and len(result.refined) >= 2:
+        refined_navigation = navigation_on_refined(dataset, settings, result.refined, bool(getattr(estimator, "in_saved_map", False)))
+    return write_outputs(result, dataset, settings, out, navigation, refined_navigation)

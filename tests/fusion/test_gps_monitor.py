@@ -4,8 +4,8 @@ import pytest
 
 from evp.config import MonitorSettings
 from evp.fusion.gps_monitor import GpsMonitor, GpsTrust
+from evp.sim.monitor_trials import first, monitor_run
 from evp.sim.sensors import GpsConfig
-from tests.fusion.monitor_trials import first, monitor_run
 
 
 @pytest.mark.parametrize("seed", range(3))

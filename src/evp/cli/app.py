@@ -12,7 +12,7 @@ import traceback
 import typer
 
 from evp import __version__
-from evp.cli import align, camera, config, dataset, evaluation, experiment, fly, sim, station, vocabulary, wifi
+from evp.cli import align, camera, config, dataset, evaluation, experiment, fly, sim, station, sweep, vocabulary, wifi
 from evp.errors import EvpError, ExitCode
 
 HELP = """EVP: where is the vehicle, from its phone camera.
@@ -33,7 +33,7 @@ Examples:
 """
 
 app = typer.Typer(help=HELP, no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False, rich_markup_mode=None)
-for group in (dataset, sim, fly, align, evaluation, camera, station, experiment):
+for group in (dataset, sim, fly, align, evaluation, camera, station, experiment, sweep):
     app.add_typer(group.app)
 app.add_typer(config.app, name="config")
 app.add_typer(vocabulary.app, name="vocabulary")
@@ -60,6 +60,7 @@ OPTIONAL_MODULES = {
     **dict.fromkeys(("starlette", "uvicorn", "websockets", "sqlalchemy", "cryptography", "segno"), "station"),
     "pymavlink": "mavlink",
     "psycopg": "postgres",
+    **dict.fromkeys(("dask", "distributed"), "cluster"),
 }
 
 

@@ -64,9 +64,7 @@ def run(
     from evp.config import load_settings
     from evp.estimator import NOT_INITIALISED_HINT
     from evp.io.registry import open_dataset
-    from evp.io.run_outputs import write_outputs
-    from evp.pipeline import run_dataset
-    from evp.run_setup import camera_for, make_estimator, navigation_off, navigation_on_refined, navigation_stage, resolve_settings, with_camera
+    from evp.run_setup import estimate, navigation_off, refine_and_write, resolve_settings, with_camera
 
     writable_folder(out)
     settings = with_camera(load_settings(config), camera)
@@ -81,23 +79,12 @@ def run(
         raise DatasetError(dataset_path, f"no camera frames to run on ({dataset.format})")
     echo_warnings(dataset)
     settings = resolve_settings(settings, dataset)  # settings.yaml then names what ran
-    estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
-    navigation = navigation_stage(dataset, settings, estimator)
-    if navigation is None and dataset.imu:
-        typer.echo(f"warning: the IMU is not fused: {navigation_off(dataset, settings)}", err=True)
+    if dataset.imu and (unfused := navigation_off(dataset, settings)) is not None:
+        typer.echo(f"warning: the IMU is not fused: {unfused}", err=True)
     with progress_of(dataset.name, dataset.num_frames) as progress:
-        # a real-time replay has no spare time to also run OpenCV's ORB on each frame
-        reference_orb = None if realtime else settings.orb.n_features
-        stages = [navigation] if navigation is not None else []
-        result = run_dataset(dataset, estimator, progress.advance, reference_orb, speed if realtime else None, stages=stages)
-    # a survey adjustment or a global bundle adjustment: seconds after the last frame (the result
-    # keeps it for write_outputs)
+        result, navigation, estimator = estimate(dataset, settings, progress.advance, speed if realtime else None)
     with status_of(f"{dataset.name}: refining the trajectory (end of run)"):
-        result.final_trajectory()
-        refined_navigation = None
-        if navigation is not None and settings.navigation.refine_offline and result.refined is not None and len(result.refined) >= 2:
-            refined_navigation = navigation_on_refined(dataset, settings, result.refined, bool(getattr(estimator, "in_saved_map", False)))
-    metrics = write_outputs(result, dataset, settings, out, navigation, refined_navigation)
+        metrics = refine_and_write(result, navigation, estimator, dataset, settings, out)
     echo_saved_map(metrics.get("saved_map"))
     if metrics["tracked_frames"] == 0:
         frames = f"{dataset.num_frames} frame" + ("s" if dataset.num_frames != 1 else "")

@@ -1,5 +1,6 @@
 """Seeded trials of the GPS consistency monitor on simulated flights (no images needed): used by
-the tests and bench/gps_alignment.py (experiments on the simulator, so not part of the core).
+the tests, bench/gps_alignment.py and the seed002-spoofing experiment (experiments on the
+simulator, so not part of the core).
 
 The visual track is the truth replayed with a scale and a heading error of ``drift_fraction``
 (1 sigma each, slowly wandering), so its error grows in proportion to the distance travelled like a
@@ -37,7 +38,12 @@ def drifting_track(truth: np.ndarray, drift_fraction: float, rng: np.random.Gene
     return truth[0] + np.cumsum(moved, axis=0)
 
 
-def monitor_run(gps_config: sensors.GpsConfig, seed: int, duration_s: float = 300.0, drift_fraction: float = 0.005) -> GpsMonitor:
+def monitor_run(
+    gps_config: sensors.GpsConfig, seed: int, duration_s: float = 300.0, drift_fraction: float = 0.005, errors: list[tuple[float, float]] | None = None
+) -> GpsMonitor:
+    """The monitor over one seeded flight; ``errors`` (when given) receives (time, horizontal error
+    of the monitored position, the visual track plus the monitor's correction, against the truth)
+    at each fix after the alignment phase."""
     scenario = build_scenario("drone-flight", SimOptions(duration_s=duration_s, relief=False, seed=seed))
     state = scenario.motion.state(sensors.sample_times(0.0, duration_s, gps_config.rate_hz))
     fixes = sensors.simulate_gps(state, gps_config, scenario.origin, np.random.default_rng(seed))
@@ -51,13 +57,15 @@ def monitor_run(gps_config: sensors.GpsConfig, seed: int, duration_s: float = 30
     monitor = GpsMonitor(MonitorSettings())
     frame_times = np.arange(ALIGNED_AFTER_S, duration_s, 1 / 30)  # camera frames: outages are noticed between fixes
     next_frame = 0
-    for t, g, v, d in zip(gps_times, gps_enu[:, :2], visual, travelled):
+    for t, g, v, d, true_en in zip(gps_times, gps_enu[:, :2], visual, travelled, truth[:, :2]):
         if t < ALIGNED_AFTER_S:
             continue
         while next_frame < len(frame_times) and frame_times[next_frame] < t:
             monitor.check_outage(float(frame_times[next_frame]))
             next_frame += 1
         monitor.update(float(t), g, v, float(d))
+        if errors is not None:
+            errors.append((float(t), float(np.linalg.norm(v + monitor.correction - true_en))))
     monitor.check_outage(duration_s)
     return monitor
 

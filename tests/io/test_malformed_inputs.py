@@ -61,6 +61,20 @@ def test_euroc_missing_image_is_reported(tmp_path):
         open_dataset(root)
 
 
+def test_euroc_sensor_log_with_no_rows_is_a_sensor_that_recorded_nothing(tmp_path):
+    """A GPS jammed from take-off leaves its header and no fixes: read as no GPS, said once; a
+    malformed row in the same log is still an error with its line."""
+    root = builders.make_euroc(tmp_path / "ds")
+    (root / "mav0/gps0").mkdir()
+    log = root / "mav0/gps0/data.csv"
+    log.write_text("#timestamp [ns],latitude [deg],longitude [deg],altitude [m],h_acc [m],v_acc [m]\n")
+    dataset = open_dataset(root)
+    assert dataset.gps == [] and any("gps0/data.csv has no rows" in w for w in dataset.warnings)
+    log.write_text(log.read_text() + "1000000000,41.5,-83.7\n")
+    with pytest.raises(DatasetError, match="expected 6 values"):
+        open_dataset(root)
+
+
 def test_euroc_corrupt_image_fails_when_decoded(tmp_path):
     root = builders.make_euroc(tmp_path / "ds")
     victim = sorted((root / "mav0/cam0/data").glob("*.png"))[2]

@@ -26,12 +26,18 @@ def read_text_file(path: Path, error: type[DataFormatError] = DatasetError) -> s
 
 
 def read_table(
-    path: Path, columns: int | None = None, min_columns: int = 1, delimiter: str | None = None, header: bool | None = None
+    path: Path,
+    columns: int | None = None,
+    min_columns: int = 1,
+    delimiter: str | None = None,
+    header: bool | None = None,
+    allow_empty: bool = False,
 ) -> tuple[np.ndarray, list[int], list[str]]:
     """Numeric rows of a text table.
 
     Lines starting with ``#`` are comments; a first line that is not numeric is a header when
-    ``header`` is None. Returns (values, 1-based line numbers, header fields).
+    ``header`` is None. Returns (values, 1-based line numbers, header fields). A table with no
+    rows is an error unless ``allow_empty`` (a sensor's log that recorded nothing: (0, columns)).
     """
     text = read_text_file(path)
     rows: list[list[float]] = []
@@ -59,6 +65,8 @@ def read_table(
         rows.append(values)
         numbers.append(number)
     if not rows:
+        if allow_empty:
+            return np.zeros((0, columns or 0)), [], names
         raise DatasetError(path, "no data rows")
     return np.array(rows, dtype=float), numbers, names
 

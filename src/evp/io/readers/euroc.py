@@ -94,18 +94,26 @@ class EurocReader:
 
     @staticmethod
     def _extra_sensors(mav0: Path, dataset: Dataset) -> None:
-        """Sensors EuRoC lacks, in the same CSV style (written by ``evp sim``; see docs/simulator.md)."""
-        if (mav0 / "gps0" / "data.csv").is_file():
-            rows, _, _ = read_table(mav0 / "gps0" / "data.csv", columns=6)
+        """Sensors EuRoC lacks, in the same CSV style (written by ``evp sim``; see docs/simulator.md).
+        A log with its header and no rows is a sensor that recorded nothing (a GPS jammed from
+        take-off): read as empty, with a warning."""
+
+        def rows_of(sensor: str, columns: int) -> np.ndarray | None:
+            path = mav0 / sensor / "data.csv"
+            if not path.is_file():
+                return None
+            rows, _, _ = read_table(path, columns=columns, allow_empty=True)
+            if len(rows) == 0:
+                dataset.warnings.append(f"{sensor}/data.csv has no rows: the {sensor[:-1]} recorded nothing")
+            return rows
+
+        if (rows := rows_of("gps0", 6)) is not None:
             dataset.gps = [GpsFix(r[0] / 1e9, *map(float, r[1:6])) for r in rows]
-        if (mav0 / "baro0" / "data.csv").is_file():
-            rows, _, _ = read_table(mav0 / "baro0" / "data.csv", columns=3)
+        if (rows := rows_of("baro0", 3)) is not None:
             dataset.baro = [BaroSample(r[0] / 1e9, float(r[1]), float(r[2])) for r in rows]
-        if (mav0 / "range0" / "data.csv").is_file():
-            rows, _, _ = read_table(mav0 / "range0" / "data.csv", columns=2)
+        if (rows := rows_of("range0", 2)) is not None:
             dataset.ranges = [RangeSample(r[0] / 1e9, float(r[1])) for r in rows]
-        if (mav0 / "wheel0" / "data.csv").is_file():
-            rows, _, _ = read_table(mav0 / "wheel0" / "data.csv", columns=5)
+        if (rows := rows_of("wheel0", 5)) is not None:
             dataset.wheel = [WheelOdometry(r[0] / 1e9, (float(r[1]), float(r[2])), float(r[3]), float(r[4])) for r in rows]
         if (mav0 / "wifi0" / "data.csv").is_file():
             dataset.wifi = read_wifi_csv(mav0 / "wifi0" / "data.csv")

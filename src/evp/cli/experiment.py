@@ -24,7 +24,7 @@ def experiment(
     verbose: bool = typer.Option(False, "--verbose", help="With list: the titles too."),
 ) -> None:
     """Run one of the papers' studies (evp experiment list names them, one a line)."""
-    from evp.cli.sweep import progress_line
+    from evp.cli.progress import progress_line
     from evp.experiments import EXPERIMENTS
     from evp.experiments import experiment as find
 

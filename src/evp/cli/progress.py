@@ -90,3 +90,9 @@ def status_of(text: str, terminal: bool | None = None) -> Iterator[None]:
         return
     print(f"{text} ...", file=sys.stderr, flush=True)
     yield
+
+
+def progress_line(text: str) -> None:
+    """A batch's events (jobs done, running, failed, time left): whole lines with the time, on
+    stderr, the same on a terminal and in a log."""
+    print(f"[{time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)

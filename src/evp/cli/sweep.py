@@ -2,17 +2,13 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import typer
 
+from evp.cli.progress import progress_line
+
 app = typer.Typer()
-
-
-def progress_line(text: str) -> None:
-    """A batch's progress: whole lines with the time, on stderr (a terminal and a log alike)."""
-    typer.echo(f"[{time.strftime('%H:%M:%S')}] {text}", err=True)
 
 
 @app.command()

@@ -449,6 +449,10 @@ class StationSettings(_Section):
         gt=0,
         description="an interrupted session keeps its estimator (and map) this long for a reconnect; later it resumes with a new map (a dead link is seen within heartbeat_timeout_s, so a phone that comes back does so within seconds; 60 s frees the process and file of one that does not)",
     )
+    vision_process: bool = Field(
+        True,
+        description="each session's estimator (SLAM) in a process of its own beside the one that answers the frames: the answers never wait for SLAM's Python (measured with py-spy: the answering thread waited for the interpreter more than it worked); false: one process per session, as offline",
+    )
     vision_wait_s: float = Field(
         1.0,
         gt=0,
@@ -505,6 +509,12 @@ class StationSettings(_Section):
     overload_recover_s: float = Field(10.0, gt=0, description="this long without lag before the overload cap starts to rise again")
     log_burst: int = Field(20, ge=1, description="the same log message at most this many times per log_window_s; the rest are counted and summarised")
     log_window_s: float = Field(10.0, gt=0)
+    pairing_max_failures: int = Field(
+        5,
+        ge=1,
+        description="failed pairing attempts a client (IP address) may make per pairing_failure_window_s; more are answered 429 unchecked and unlogged (a code is 128 random bits: the limit guards the event log and the disk, not the code)",
+    )
+    pairing_failure_window_s: float = Field(60.0, gt=0)
 
     @model_validator(mode="after")
     def _heartbeat_fits(self) -> StationSettings:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import sqlite3
 
 import pytest
 import websockets
@@ -151,6 +152,11 @@ def test_pairing_codes_are_one_use_credentials_hashed_revocable_and_never_logged
         assert http_json(station, "POST", f"/api/devices/{first['credential_id']}/revoke", {}, credential=operator)[0] == 200
         assert asyncio.run(_hello_answer(station.url, phone)) == "bad_token"
         assert http_json(station, "GET", "/api/health", credential=operator)[1] == {"database": "ok", "schema_version": "0002"}
+        guesses = [http_json(station, "POST", "/api/pair", {"code": f"guess-{k}", "device": "x"})[0] for k in range(7)]
+        assert guesses == [403] * 4 + [429] * 3, "the copy above was this client's first failure"
+    with sqlite3.connect(station_data / "evp.sqlite") as database:
+        refusals = [text for (text,) in database.execute("SELECT text FROM events WHERE code = 'pairing_refused' ORDER BY id")]
+    assert len(refusals) == 5 and "refused unchecked for 60 s" in refusals[-1], "the event log hears of the limit once, then nothing"
     secrets = [phone.partition(".")[2], operator.partition(".")[2], offer["code"]]
     stored = b"".join(path.read_bytes() for path in station_data.glob("evp.sqlite*"))
     log = (station_data.parent / f"{station_data.name}-serve.log").read_bytes()

@@ -22,7 +22,7 @@ import pytest
 import websockets
 
 from evp.io.registry import open_dataset
-from evp.station.limits import OpenConnection, RateLimitedLog, admission
+from evp.station.limits import FailureThrottle, OpenConnection, RateLimitedLog, admission
 from evp.station.protocol import PROTOCOL_VERSION, Config, Hello, encode, encode_image
 from evp.types import CameraModel
 from tests.conftest import SAMPLE
@@ -81,6 +81,24 @@ def _estimator_processes(pid: int) -> int:
             if int(fields[1]) == pid and b"spawn_main" in cmdline:
                 count += 1
     return count
+
+
+def test_failed_attempts_block_a_client_until_the_oldest_leaves_the_window_and_memory_stays_bounded():
+    now = [0.0]
+    throttle = FailureThrottle(3, 60.0, clock=lambda: now[0], max_clients=100)
+    crossings = []
+    for t in (0.0, 10.0, 20.0):
+        now[0] = t
+        assert throttle.blocked("a") == 0.0
+        crossings.append(throttle.failed("a"))
+    assert crossings == [False, False, True], "told once, at the failure that blocks"
+    now[0] = 30.0
+    assert throttle.blocked("a") == pytest.approx(30.0) and throttle.blocked("b") == 0.0
+    now[0] = 60.0
+    assert throttle.blocked("a") == 0.0, "the first failure left the window"
+    for k in range(1000):
+        throttle.failed(f"client-{k}")
+    assert len(throttle._failures) == 100 and "client-999" in throttle._failures
 
 
 def test_configs_replace_the_estimator_and_sessions_bodies_and_disk_are_capped(tmp_path, station_data, frames):

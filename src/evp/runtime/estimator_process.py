@@ -9,8 +9,16 @@ loop or another session.
 The process speaks a small protocol over its pipe: ``("ready", None)`` once it can take frames,
 ``("pose", payload)`` or ``("error", payload)`` for each message it was sent, ``("finished",
 None)`` after the ``None`` that ends the stream, and any other ``(kind, payload)`` as a report
-(``on_report``). Side messages (:meth:`EstimatorProcess.send_side`: telemetry) go at once, never
+(``on_report``). With a ``partner`` (the vision process of ``evp.runtime.vision_process``), a second process
+is started beside it, the two joined by a pipe of their own; the pair lives and dies together: the
+death of either is the estimator's exit. Side messages (:meth:`EstimatorProcess.send_side`: telemetry) go at once, never
 wait and are never dropped: the process reads its pipe all the time.
+
+Writing to the pipe blocks while its buffer (64 kB, less than one VGA JPEG) is full, which it is
+whenever the process's link thread is slow to read (it waits for the GIL while SLAM holds it). So
+a writer thread writes, never the event loop: measured with py-spy on a 30 fps stream, the
+station's event loop spent 28 % of its time blocked in that write, and every session's answers
+waited behind it.
 """
 
 from __future__ import annotations
@@ -18,9 +26,19 @@ from __future__ import annotations
 import asyncio
 import multiprocessing
 import threading
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from multiprocessing.connection import wait
 from typing import Any
+
+# Frames written to the pipe's buffer wait there for the process; with ``every_message`` more can
+# pile up in the writer while the process does not read. Beyond this many unwritten frames (a
+# tenth of a second at 30 fps) the oldest one is dropped as stale: an answer that late is no use
+# to a vehicle, and the latency would otherwise grow without bound.
+MAX_FRAMES_UNWRITTEN = 3
+
+_END = object()  # the writer's last item: it sends the None that ends the stream and stops
 
 
 @dataclass
@@ -38,24 +56,47 @@ class ProcessEvents:
 class EstimatorProcess:
     """Async handle on one estimator process; create it on the event loop that gets the events."""
 
-    def __init__(self, target: Callable[..., None], args: tuple, events: ProcessEvents, name: str = "evp-estimator", every_message: bool = False):
+    def __init__(
+        self,
+        target: Callable[..., None],
+        args: tuple,
+        events: ProcessEvents,
+        name: str = "evp-estimator",
+        every_message: bool = False,
+        partner: tuple[Callable[..., None], tuple] | None = None,
+    ):
         """``every_message``: once the process is ready, every message goes to it at once (a
         process that answers each message itself at once, keeping its own newest-first slot);
-        before that the newest one waits, as always."""
+        before that the newest one waits, as always. ``partner``: ``(target, args)`` of the
+        second process; it runs ``target(its_end, *args)`` and this one gets the other end of
+        their pipe as its last argument."""
         self._events = events
         self._every_message = every_message
         self._loop = asyncio.get_running_loop()
         # spawn, not fork: the station runs an event loop and threads a forked child would inherit
         context = multiprocessing.get_context("spawn")
         self._connection, child = context.Pipe()
+        self._partner = None
+        if partner is not None:
+            ours, theirs = context.Pipe()
+            self._partner = context.Process(target=partner[0], args=(theirs, *partner[1]), name=f"{name}-vision", daemon=True)
+            self._partner.start()
+            theirs.close()
+            args = (*args, ours)
         self._process = context.Process(target=target, args=(child, *args), name=name, daemon=True)
         self._process.start()
         child.close()
+        if partner is not None:
+            ours.close()
         self.ready = False
         self._busy = False
         self._pending: Any = None
         self._closing = False
         self._finished = threading.Event()
+        self._outbox: deque[tuple[Any, bool]] = deque()  # (message, is a frame), oldest first
+        self._outbox_filled = threading.Condition()
+        self._writer = threading.Thread(target=self._write_loop, name=f"{name}-writer", daemon=True)
+        self._writer.start()
         self._reader = threading.Thread(target=self._read_loop, name=f"{name}-reader", daemon=True)
         self._reader.start()
 
@@ -77,16 +118,43 @@ class EstimatorProcess:
             self._send(message, frame=False)
 
     def _send(self, message: Any, frame: bool = True) -> None:
-        """To the process; a process that died meanwhile is reported by the reader (on_exit), and
-        the frame stays with its sender, which answers it then."""
+        """To the writer, in order; a frame that finds ``MAX_FRAMES_UNWRITTEN`` frames still
+        unwritten replaces the oldest, which is dropped (stale)."""
         self._busy = self._busy or frame
-        try:
-            self._connection.send(message)
-        except (OSError, ValueError):  # broken pipe: the process is gone
-            pass
+        stale = None
+        with self._outbox_filled:
+            if frame and sum(is_frame for _, is_frame in self._outbox) >= MAX_FRAMES_UNWRITTEN:
+                oldest = next(i for i, (_, is_frame) in enumerate(self._outbox) if is_frame)
+                stale = self._outbox[oldest][0]
+                del self._outbox[oldest]
+            self._outbox.append((message, frame))
+            self._outbox_filled.notify()
+        if stale is not None:
+            self._events.on_dropped(stale)
+
+    def _write_loop(self) -> None:
+        """Writes the outbox to the process; a process that died meanwhile is reported by the
+        reader (on_exit), and the frames stay with their sender, which answers them then."""
+        while True:
+            with self._outbox_filled:
+                while not self._outbox:
+                    self._outbox_filled.wait()
+                message, _ = self._outbox.popleft()
+            try:
+                self._connection.send(None if message is _END else message)
+            except (OSError, ValueError):  # broken pipe: the process is gone
+                pass
+            if message is _END:
+                return
 
     def _read_loop(self) -> None:
+        watched = [self._connection] + ([self._partner.sentinel] if self._partner is not None else [])
         while True:
+            if self._connection not in wait(watched):  # the partner ended
+                watched.remove(self._partner.sentinel)
+                if not self._closing:  # the pair dies together: the supervisor starts a new pair
+                    self._process.kill()
+                continue
             try:
                 kind, payload = self._connection.recv()
             except (EOFError, OSError):
@@ -116,7 +184,11 @@ class EstimatorProcess:
     def _on_exit(self) -> None:
         if not self._closing:
             self._closing = True
-            self._events.on_exit(f"estimator process exited (code {self._process.exitcode})")
+            partner = self._partner
+            if partner is not None and partner.exitcode is not None and partner.exitcode != 0:
+                self._events.on_exit(f"vision process exited (code {partner.exitcode})")
+            else:
+                self._events.on_exit(f"estimator process exited (code {self._process.exitcode})")
 
     async def close(self, timeout: float = 30.0) -> None:
         """Let the message in progress finish, end the stream, then stop the process."""
@@ -127,13 +199,16 @@ class EstimatorProcess:
         await asyncio.to_thread(self._stop, timeout)
 
     def _stop(self, timeout: float) -> None:
-        try:
-            self._connection.send(None)
-        except (OSError, ValueError):
-            pass
+        with self._outbox_filled:
+            self._outbox.append((_END, False))
+            self._outbox_filled.notify()
+        self._writer.join(timeout)
         self._finished.wait(timeout)
-        self._process.join(timeout=5)
-        if self._process.is_alive():
-            self._process.kill()
-            self._process.join()
+        for process in (self._process, self._partner):
+            if process is None:
+                continue
+            process.join(timeout=5)
+            if process.is_alive():
+                process.kill()
+                process.join()
         self._connection.close()

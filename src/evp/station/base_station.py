@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 from evp import __version__
 from evp.config import Settings
 from evp.station.auth import DEV, Credentials, Identity
+from evp.station.limits import FailureThrottle
 from evp.station.overload import LoadGovernor
 from evp.station.protocol import PROTOCOL_VERSION, SESSION_ID, Config, GpsTelemetry, Hello, Pose, ProtocolError
 from evp.station.recording import has_summary, repair
@@ -46,6 +47,7 @@ class Station:
         self.storage = StorageGuard(self.data_dir, settings.station.min_free_disk_mb, lambda: self.store.problem)
         self._storage_failing = False  # what the operators were last told
         self.credentials = Credentials(self.store.engine)
+        self.pairing_failures = FailureThrottle(settings.station.pairing_max_failures, settings.station.pairing_failure_window_s)
         self.link_closers: dict[str, Callable[[], None]] = {}  # session id -> close its current link (a resume by its owner)
         self.sessions: dict[str, LiveSession] = {}
         self.operators: set[asyncio.Queue] = set()

@@ -10,6 +10,7 @@ answered at once with the current estimate, vision on the newest frame in a work
 from __future__ import annotations
 
 import math
+import os
 import sys
 import threading
 import time
@@ -138,17 +139,39 @@ def navigation_state(stage) -> dict:
     }
 
 
-def worker_main(connection, camera: CameraModel, settings_json: str, T_body_cam: list[float] | None = None, answers: str = "at_once") -> None:
+# The vision process yields the CPU to the processes that answer (the station's event loop, each
+# session's estimator process, the phone's link): a late visual correction costs the filter
+# little, a late answer costs the vehicle its control loop. On idle cores it runs at full speed;
+# 5 (a third of a default process's share of a contested core), not 19: other work on the
+# station must not starve vision altogether (at 10, a machine at load 19 tracked no frame).
+VISION_NICENESS = 5
+
+
+def vision_main(connection, camera: CameraModel, settings_json: str) -> None:
+    """The vision process (``EstimatorProcess``'s partner, ``station.vision_process``): the
+    configured estimator, fed by the estimator process's :class:`RemoteEstimator`, at a lower
+    priority (``VISION_NICENESS``)."""
+    from evp.config import Settings
+    from evp.run_setup import make_estimator
+    from evp.runtime.vision_process import serve_estimator
+
+    os.nice(VISION_NICENESS)
+    serve_estimator(connection, make_estimator(camera, Settings.model_validate_json(settings_json)))
+
+
+def worker_main(connection, camera: CameraModel, settings_json: str, T_body_cam: list[float] | None = None, answers: str = "at_once", vision=None) -> None:
     """The estimator process (``EstimatorProcess``'s target): the one pipeline over the wire's
     frames and telemetry, with the navigation stage when the mobile station gave its camera's
     extrinsic to the IMU (``T_body_cam``) and the estimator is SLAM; see
-    :mod:`evp.runtime.live_pipeline` for how ``answers`` at once and vision share it."""
+    :mod:`evp.runtime.live_pipeline` for how ``answers`` at once and vision share it. With
+    ``vision`` (the pipe to :func:`vision_main`'s process) the estimator runs there."""
     from evp.config import Settings
     from evp.fusion.navigation_stage import NavigationStage
     from evp.run_setup import make_estimator, saved_map_georeference
+    from evp.runtime.vision_process import RemoteEstimator
 
     settings = Settings.model_validate_json(settings_json)
-    estimator = make_estimator(camera, settings)
+    estimator = make_estimator(camera, settings) if vision is None else RemoteEstimator(vision)
     sys.setswitchinterval(LINK_SWITCH_INTERVAL_S)
     lock = threading.Lock()
 

@@ -196,6 +196,40 @@ class RateLimitedLog(logging.Filter):
         return False
 
 
+class FailureThrottle:
+    """Failed attempts per client over the last ``window_s``: a client with ``max_failures`` of
+    them is :meth:`blocked` until the oldest leaves the window. Holds at most ``max_clients``
+    clients (the ones seen longest ago are forgotten first), so a flood from many addresses
+    cannot grow it."""
+
+    def __init__(self, max_failures: int, window_s: float, clock: Callable[[], float] = time.monotonic, max_clients: int = 10_000):
+        self.max_failures, self.window_s, self.clock, self.max_clients = max_failures, window_s, clock, max_clients
+        self._failures: dict[str, list[float]] = {}  # client -> failure times, oldest first (insertion order: least recent client first)
+
+    def _recent(self, client: str) -> list[float]:
+        times = [t for t in self._failures.get(client, ()) if self.clock() - t < self.window_s]
+        if times:
+            self._failures[client] = times
+        else:
+            self._failures.pop(client, None)
+        return times
+
+    def blocked(self, client: str) -> float:
+        """Seconds until ``client`` may try again (0: now)."""
+        times = self._recent(client)
+        return self.window_s - (self.clock() - times[0]) if len(times) >= self.max_failures else 0.0
+
+    def failed(self, client: str) -> bool:
+        """Count a failure; True when it is the one that blocks the client (tell it once)."""
+        times = self._recent(client)
+        times.append(self.clock())
+        self._failures.pop(client, None)
+        self._failures[client] = times  # now the most recent client
+        while len(self._failures) > self.max_clients:
+            del self._failures[next(iter(self._failures))]
+        return len(times) == self.max_failures
+
+
 LIMITED_LOGGERS = ("asyncio", "uvicorn", "uvicorn.error", "evp")
 
 

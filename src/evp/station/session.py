@@ -24,7 +24,7 @@ import numpy as np
 
 from evp.config import Settings
 from evp.runtime.estimator_process import EstimatorProcess, ProcessEvents
-from evp.station.estimation import worker_main
+from evp.station.estimation import vision_main, worker_main
 from evp.station.protocol import (
     Bye,
     Config,
@@ -358,7 +358,8 @@ class LiveSession:
         self.store.insert("settings", session_id=self.id, t=time.time(), source="server", data_json=settings_json)
         events = ProcessEvents(self._worker_ready, self._worker_pose, self._worker_error, self._worker_dropped, self._worker_exit, self._worker_report)
         args = (self.camera, settings_json, self.T_body_cam, self.answers)
-        self.worker = EstimatorProcess(worker_main, args, events, every_message=self.answers == "at_once")
+        vision = (vision_main, (self.camera, settings_json)) if self.station.settings.station.vision_process else None
+        self.worker = EstimatorProcess(worker_main, args, events, every_message=self.answers == "at_once", partner=vision)
         self.station.on_new_map(self)
         if self.degraded:
             self.event("warning", "degraded", self.degraded)

@@ -19,7 +19,7 @@ from evp.errors import UsageError
 from evp.sim import paths, road
 from evp.sim.motion import SplineMotion, car_attitude, heading_from_velocity, multirotor_attitude
 from evp.sim.sensors import BaroConfig, GpsConfig, ImuConfig, RangeConfig, WheelConfig, WifiConfig
-from evp.sim.textures import image_texture, marker_field_texture, procedural_texture
+from evp.sim.textures import TEXTURE_KINDS, image_texture, marker_field_texture, procedural_texture
 from evp.sim.world import Scene, TexturedQuad, box_quads
 from evp.types import CameraModel, LensModel
 
@@ -130,7 +130,7 @@ def fisheye_camera(width: int, height: int, diagonal_fov_deg: float, coefficient
 def _ground(options: SimOptions, default_kind: str, half_extent: float, metres_per_texel: float) -> TexturedQuad:
     size = 2 * half_extent
     spec = options.texture or default_kind
-    if spec in ("rich", "low", "floor", "wall"):
+    if spec in TEXTURE_KINDS:
         texels = min(12000, int(size / metres_per_texel))
         texture = procedural_texture(spec, (size, size), size / texels, options.seed)
     else:
@@ -251,8 +251,8 @@ def _seed000_loops(options: SimOptions, name: str, area: tuple[float, float], te
 
 
 def drone_field_loops(options: SimOptions) -> Scenario:
-    """Seed 000's football-field flight: loops over 27 x 28 m, low texture (altitude assumed 15 m)."""
-    return _seed000_loops(options, "drone-field-loops", (27.0, 28.0), "low", 15.0)
+    """Seed 000's football-field flight: loops over 27 x 28 m of a mown pitch (altitude assumed 15 m)."""
+    return _seed000_loops(options, "drone-field-loops", (27.0, 28.0), "pitch", 15.0)
 
 
 def drone_square_loops(options: SimOptions) -> Scenario:

@@ -14,7 +14,7 @@ import numpy as np
 
 from evp.errors import DataFormatError, UsageError
 
-TEXTURE_KINDS = ("rich", "low", "floor", "wall")
+TEXTURE_KINDS = ("rich", "low", "pitch", "floor", "wall")
 MAX_TEXELS = 12000  # per side; coarser texels are used beyond this
 
 
@@ -36,7 +36,9 @@ def procedural_texture(kind: str, size_m: tuple[float, float], metres_per_texel:
     """A seeded texture of ``size_m`` (width, height) metres.
 
     rich: paved square (slabs, joints, stains, small objects); low: grass field (faint mottling and
-    a few painted lines); floor: indoor tiles; wall: painted plaster with posters and doors.
+    a few painted lines); pitch: a mown football pitch seen from a drone's height (mowing stripes,
+    grass clumps, worn patches, the pitch's lines); floor: indoor tiles; wall: painted plaster with
+    posters and doors.
     """
     if kind not in TEXTURE_KINDS:
         raise UsageError(f"unknown texture {kind!r}; choose one of {', '.join(TEXTURE_KINDS)} or an image file")
@@ -60,6 +62,8 @@ def procedural_texture(kind: str, size_m: tuple[float, float], metres_per_texel:
             else:
                 y = int(rng.integers(0, shape[0]))
                 base[y : y + max(1, int(0.12 / metres_per_texel)), :] = 220
+    elif kind == "pitch":
+        base = _pitch(rng, shape, metres_per_texel)
     elif kind == "floor":
         base = 150 + _octaves(rng, shape, metres_per_texel, [2.0, 0.3, 0.05], [15, 20, 25])
         tile = max(2, int(round(0.4 / metres_per_texel)))
@@ -77,6 +81,38 @@ def procedural_texture(kind: str, size_m: tuple[float, float], metres_per_texel:
             patch = rng.uniform(30, 230) + 40 * _smooth_noise(rng, (max(2, h), max(2, w)), max(1.5, 0.05 / metres_per_texel))
             base[y0 : y0 + h, x0 : x0 + w] = patch[: shape[0] - y0, : shape[1] - x0]
     return np.clip(base, 0, 255).astype(np.uint8)
+
+
+# A mown pitch from 10-20 m up (2-3 cm a pixel): the mower's stripes (5 m wide, a few grey levels
+# apart), grass clumps and tufts at 5-30 cm with the contrast of blades in their own shadow, worn
+# patches of bare soil (goalmouths, the centre spot), and white lines 12 cm wide. Photographs of
+# pitches from drones at that height show all four; "low" (faint metre-scale mottling only) has
+# none of the clumps a feature detector finds on real grass, so no visual odometry could track it.
+PITCH_STRIPE_M = 5.0
+PITCH_GRASS_SCALES_M = [12.0, 2.0, 0.3, 0.08]
+PITCH_GRASS_WEIGHTS = [8, 6, 9, 12]
+
+
+def _pitch(rng: np.random.Generator, shape: tuple[int, int], metres_per_texel: float) -> np.ndarray:
+    base = 100 + _octaves(rng, shape, metres_per_texel, PITCH_GRASS_SCALES_M, PITCH_GRASS_WEIGHTS)
+    stripe = (np.arange(shape[1]) * metres_per_texel // PITCH_STRIPE_M) % 2
+    base += np.where(stripe == 0, 6.0, -6.0)[None, :]
+    soften = max(1.0, 0.3 / metres_per_texel)
+    for _ in range(int(shape[0] * shape[1] * metres_per_texel**2 / 120) + 2):  # worn, bare patches
+        half = int(3.0 / metres_per_texel + 3 * soften) + 1
+        x, y = int(rng.integers(0, shape[1])), int(rng.integers(0, shape[0]))
+        window = (slice(max(0, y - half), y + half), slice(max(0, x - half), x + half))
+        local = base[window]
+        wear = np.zeros(local.shape, np.float32)
+        axes = (int(rng.uniform(0.5, 3.0) / metres_per_texel) + 1, int(rng.uniform(0.4, 2.0) / metres_per_texel) + 1)
+        cv2.ellipse(wear, (x - window[1].start, y - window[0].start), axes, float(rng.uniform(0, 180)), 0, 360, 1.0, -1)
+        local += 25 * cv2.GaussianBlur(wear, (0, 0), soften) * (0.6 + 0.4 * _smooth_noise(rng, local.shape, max(1.5, 0.2 / metres_per_texel)))
+    line = max(1, int(round(0.12 / metres_per_texel)))
+    for x in (shape[1] // 8, shape[1] // 2, shape[1] - shape[1] // 8):  # touchline, halfway line, touchline
+        base[:, x : x + line] = 215
+    centre = (shape[1] // 2, shape[0] // 2)
+    cv2.circle(base, centre, int(9.15 / metres_per_texel), 215.0, line)
+    return base
 
 
 def image_texture(paths: list[Path], tiles_x: int | None = None) -> np.ndarray:

@@ -26,6 +26,9 @@ def test_partial_file_overrides_defaults(tmp_path):
         ("orb:\n  nfeatures: 1000\n", "orb.nfeatures"),
         ("eval:\n  align: affine\n", "eval.align"),
         ("orb: [1, 2\n", "invalid YAML"),
+        ("station:\n  background_bounds_deg: [47, 8, 47.1, 8.1]\n", "go together"),
+        ("station:\n  background_image: o.png\n  background_bounds_deg: [47.1, 8, 47, 8.1]\n", "south < north"),
+        ("station:\n  background_image: o.tif\n  background_bounds_deg: [47, 8, 47.1, 8.1]\n", "gdal_translate"),
     ],
 )
 def test_invalid_settings_name_the_field(tmp_path, text, message):

@@ -515,11 +515,33 @@ class StationSettings(_Section):
         description="failed pairing attempts a client (IP address) may make per pairing_failure_window_s; more are answered 429 unchecked and unlogged (a code is 128 random bits: the limit guards the event log and the disk, not the code)",
     )
     pairing_failure_window_s: float = Field(60.0, gt=0)
+    background_image: str = Field(
+        "",
+        description="an orthophoto or mosaic (PNG or JPEG, north up) drawn under the operator's top view of georeferenced sessions; needs background_bounds_deg",
+    )
+    background_bounds_deg: tuple[float, float, float, float] | None = Field(
+        None,
+        description="the background image's edges in WGS-84 degrees: south, west, north, east (a KML GroundOverlay's LatLonBox; gdalinfo's corner coordinates)",
+    )
 
     @model_validator(mode="after")
     def _heartbeat_fits(self) -> StationSettings:
         if self.heartbeat_timeout_s <= self.heartbeat_interval_s:
             raise ValueError(f"heartbeat_timeout_s ({self.heartbeat_timeout_s:g}) must exceed heartbeat_interval_s ({self.heartbeat_interval_s:g})")
+        return self
+
+    @model_validator(mode="after")
+    def _background_placed(self) -> StationSettings:
+        if bool(self.background_image) != (self.background_bounds_deg is not None):
+            raise ValueError("background_image and background_bounds_deg go together: the image and where its edges are")
+        if self.background_bounds_deg is not None:
+            south, west, north, east = self.background_bounds_deg
+            if not (-90.0 <= south < north <= 90.0 and -180.0 <= west < east <= 180.0):
+                raise ValueError(
+                    f"background_bounds_deg {list(self.background_bounds_deg)}: give south < north within +-90 and west < east within +-180 degrees"
+                )
+        if self.background_image and Path(self.background_image).suffix.lower() not in (".png", ".jpg", ".jpeg"):
+            raise ValueError(f"background_image {self.background_image!r}: a PNG or JPEG image (convert a GeoTIFF with gdal_translate -of PNG)")
         return self
 
 

@@ -126,3 +126,42 @@ def test_phone_frames_stay_in_order_on_a_throttled_cpu(tmp_path, station_data):
         log = phone.inner_text("#log")
         browser.close()
     assert counts["errors"] == 0, log
+
+
+BACKGROUND_ROW_COLOURS = """() => {
+  const canvas = document.getElementById('top-view'), ctx = canvas.getContext('2d');
+  const left = PLOT.left, right = canvas.width - PLOT.right, middle = Math.round((left + right) / 2);
+  const row = Math.round(PLOT.top + (canvas.height - PLOT.top - PLOT.bottom) / 2);
+  const red = (x0, x1) => { let n = 0; for (let x = x0; x < x1; x++) { const [r, g, b] = ctx.getImageData(x, row, 1, 1).data; n += r > 200 && g < 120 && b < 120; } return n / (x1 - x0); };
+  return [canvas.dataset.background, red(left, middle), red(middle, right)];
+}"""
+
+
+def test_an_orthophoto_lies_under_the_georeferenced_top_view_where_its_bounds_say(tmp_path, station_data):
+    """The station's background image (a red west half of a 110 m square) is drawn under a
+    georeferenced track around that square, north up: red west of the square's centre, none east."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    import cv2
+    import numpy as np
+    import yaml
+
+    lat, lon, d = 47.0, 8.0, 0.0005
+    image = tmp_path / "ortho.png"
+    cv2.imwrite(str(image), np.dstack([np.zeros((64, 64), np.uint8), np.zeros((64, 64), np.uint8), np.full((64, 64), 255, np.uint8)]))
+    config = tmp_path / "station.yaml"
+    config.write_text(yaml.safe_dump({"station": {"background_image": str(image), "background_bounds_deg": [lat - d, lon - d, lat + d, lon]}}))
+    corners = [(lat - d, lon - d), (lat - d, lon + d), (lat + d, lon + d), (lat + d, lon - d), (lat - d, lon - d)]
+    poses = [
+        {"t": [0, 0, 30], "state": "OK", "metric": True, "timestamp": k, "latitude_deg": a, "longitude_deg": o, "altitude_m": 30.0}
+        for k, (a, o) in enumerate(corners)
+    ]
+    with running_station(station_data, "--config", str(config)) as station, sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        operator = browser.new_context(ignore_https_errors=True).new_page()
+        operator.goto(station.http)
+        operator.wait_for_function("window.evp.background !== null")
+        operator.evaluate("poses => { evp.selected = 's'; for (const pose of poses) series(evp.trajectories, 's').push(pose); redraw(); }", poses)
+        drawn, west, east = operator.evaluate(BACKGROUND_ROW_COLOURS)
+        operator.screenshot(path=str(ARTIFACTS / "operator-background.png"))
+        browser.close()
+    assert drawn == "drawn" and west > 0.3 and east < 0.02, (west, east)

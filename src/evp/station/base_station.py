@@ -308,6 +308,7 @@ class Station:
             "mavlink": self.mavlink_url,
             "storage": self.storage_problem(),
             "live": {sid: {"status": s.status().model_dump(), "connected": s.connected, "device": s.device} for sid, s in self.sessions.items()},
+            "background": {"url": "/api/background", "bounds_deg": list(bounds)} if (bounds := self.settings.station.background_bounds_deg) else None,
         }
 
     async def _status_loop(self) -> None:

@@ -71,6 +71,8 @@ def serve(host: str, port: int, data_dir: Path, settings: Settings, db_url: str 
     if limits.dev_loopback and not is_loopback(host):
         raise UsageError(f"--dev-loopback (no credentials) listens on loopback only, not on {host!r}: use --host 127.0.0.1")
     check_port(host, port)
+    if limits.background_image and not Path(limits.background_image).is_file():
+        raise UsageError(f"station.background_image {limits.background_image!r}: no such file")
     writable_folder(data_dir, "--data")
     data_dir.mkdir(parents=True, exist_ok=True)
     cert, key = ensure_certificate(data_dir / "tls") if tls else (None, None)

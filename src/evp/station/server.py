@@ -203,6 +203,14 @@ async def configure(request: Request) -> JSONResponse:
     return JSONResponse({"config": config.model_dump()})
 
 
+async def background(request: Request) -> Response:
+    """The top view's background image (``station.background_image``), when one is configured."""
+    image = request.app.state.station.settings.station.background_image
+    if not image:
+        return JSONResponse({"error": "no background image (station.background_image)"}, status_code=404)
+    return FileResponse(image, media_type="image/png" if image.lower().endswith(".png") else "image/jpeg")
+
+
 async def sessions(request: Request) -> JSONResponse:
     rows = await asyncio.to_thread(request.app.state.station.store.list_sessions)
     return JSONResponse({"sessions": rows})
@@ -358,6 +366,7 @@ def create_app(station: Station) -> Starlette:
         Route("/phone", _page("phone.html")),
         Route("/api/state", state),
         Route("/api/configure", configure, methods=["POST"]),
+        Route("/api/background", background),
         Route("/api/sessions", sessions),
         Route("/api/sessions/{session_id}/trajectory.tum", trajectory),
         Route("/api/sessions/{session_id}/recording.mcap", recording),

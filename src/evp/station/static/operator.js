@@ -4,7 +4,8 @@
 const $ = id => document.getElementById(id);
 // per session: its poses and GPS fixes (decimated: a 2-hour session draws as fast as a short one),
 // the navigation filter's last state and the GPS alarm in force
-const state = { config: null, live: {}, selected: null, trajectories: {}, gps: {}, navigation: {}, alarms: {} };
+// and the station's background image for georeferenced top views ({image, bounds_deg}, once loaded)
+const state = { config: null, live: {}, selected: null, trajectories: {}, gps: {}, navigation: {}, alarms: {}, background: null };
 window.evp = state; // for tests and the curious
 const ALARMS = { spoofing_alarm: "GPS SPOOFING SUSPECTED: position from vision", gps_lost: "GPS LOST (jamming or outage): position from vision" };
 const series = (store, id) => (store[id] = store[id] || new DecimatedSeries());
@@ -21,12 +22,16 @@ function redraw() {
   const fixes = series(state.gps, state.selected).points;
   const georeferenced = tracked.filter(p => p.latitude_deg !== null && p.latitude_deg !== undefined);
   const plane = $("plane").value;
-  if (georeferenced.length && fixes.length) { // the fused track against GPS, east-north at the first fix
-    const origin = [fixes[0].latitude_deg, fixes[0].longitude_deg];
-    plotLines($("top-view"), [
-      { points: georeferenced.map(p => eastNorth(origin, p.latitude_deg, p.longitude_deg)), color: "#1565c0", label: "fused" },
-      { points: fixes.map(f => eastNorth(origin, f.latitude_deg, f.longitude_deg)), color: "#ef6c00", label: "GPS" },
-    ], ["east (m)", "north (m)"], { equal: true, unit: "m" });
+  if (georeferenced.length) { // the fused track (against GPS when there is any), east-north at the first fix or pose
+    const first = fixes.length ? fixes[0] : georeferenced[0], origin = [first.latitude_deg, first.longitude_deg];
+    const lines = [{ points: georeferenced.map(p => eastNorth(origin, p.latitude_deg, p.longitude_deg)), color: "#1565c0", label: "fused" }];
+    if (fixes.length) lines.push({ points: fixes.map(f => eastNorth(origin, f.latitude_deg, f.longitude_deg)), color: "#ef6c00", label: "GPS" });
+    const options = { equal: true, unit: "m" };
+    if (state.background) {
+      const [south, west, north, east] = state.background.bounds_deg;
+      options.background = { image: state.background.image, corners: [eastNorth(origin, south, west), eastNorth(origin, north, east)] };
+    }
+    plotLines($("top-view"), lines, ["east (m)", "north (m)"], options);
   } else {
     // a monocular map has no metric scale until the navigation filter gives it one: say so in the units
     const metricTop = tracked.length > 0 && tracked[tracked.length - 1].metric, unit = metricTop ? "m" : "map units";
@@ -126,6 +131,14 @@ function updateSessionRow(id) {
   row.cells[3].textContent = s.frames_received; row.cells[4].textContent = s.frames_estimated; row.cells[5].textContent = s.frames_dropped;
 }
 
+// the station's orthophoto, drawn under georeferenced top views once it has loaded
+function loadBackground(background) {
+  if (!background || (state.background && state.background.url === background.url)) return;
+  const image = new Image();
+  image.onload = () => { state.background = { ...background, image }; scheduleRedraw(); };
+  image.src = background.url;
+}
+
 function fillSettings(config) {
   state.config = config;
   for (const [key, value] of Object.entries(config.orb || {})) $("orb-form").elements[key].value = value;
@@ -160,6 +173,7 @@ function onMessage(message) {
       $("mavlink").textContent = message.mavlink || "off";
       $("data-dir").textContent = message.data_dir; $("db").textContent = message.db;
       fillSettings(message.config);
+      loadBackground(message.background);
       state.live = message.live; refreshSelect(); loadSessions();
       break;
     }

@@ -68,9 +68,22 @@ function drawScaleBar(ctx, frame, xr, unit) {
   return length;
 }
 
+// An image under the plot (an orthophoto under a top view): `background.image` (loaded) spans
+// the plot coordinates from `background.corners[0]` (its lower left) to `corners[1]` (its upper
+// right), clipped to the plot's frame and a little faded so the grid and the tracks stay readable.
+function drawBackground(ctx, frame, background) {
+  const [[x0, y0], [x1, y1]] = background.corners;
+  ctx.save();
+  ctx.beginPath(); ctx.rect(PLOT.left, PLOT.top, frame.pw, frame.ph); ctx.clip();
+  ctx.globalAlpha = 0.8;
+  ctx.drawImage(background.image, frame.px(x0), frame.py(y1), frame.px(x1) - frame.px(x0), frame.py(y0) - frame.py(y1));
+  ctx.restore();
+}
+
 // series: [{points: [[x, y], ...], color, label}, ...]; options.equal: same scale on both axes (a
-// top view must not distort the path), with a scale bar in options.unit. The last point of the
-// first series is marked (the vehicle now). Returns what was drawn (ticks, scale bar), for tests.
+// top view must not distort the path), with a scale bar in options.unit; options.background: an
+// image under it (drawBackground). The last point of the first series is marked (the vehicle
+// now). Returns what was drawn (ticks, scale bar, background), for tests.
 function plotLines(canvas, series, labels, options = {}) {
   const ctx = canvas.getContext("2d"), w = canvas.width, h = canvas.height;
   const all = series.flatMap(s => s.points);
@@ -82,6 +95,7 @@ function plotLines(canvas, series, labels, options = {}) {
     xr = [xc - scale * pw / 2, xc + scale * pw / 2]; yr = [yc - scale * ph / 2, yc + scale * ph / 2];
   }
   const frame = drawAxes(ctx, w, h, xr, yr, labels);
+  if (options.background) drawBackground(ctx, frame, options.background);
   for (const s of series) {
     ctx.strokeStyle = s.color; ctx.lineWidth = 1.5; ctx.beginPath();
     s.points.forEach((p, i) => (i ? ctx.lineTo(frame.px(p[0]), frame.py(p[1])) : ctx.moveTo(frame.px(p[0]), frame.py(p[1]))));
@@ -96,7 +110,8 @@ function plotLines(canvas, series, labels, options = {}) {
   const scaleBar = options.equal && all.length ? drawScaleBar(ctx, frame, xr, options.unit || "m") : null;
   canvas.dataset.xticks = frame.xticks.length; canvas.dataset.yticks = frame.yticks.length;
   canvas.dataset.scaleBar = scaleBar === null ? "" : `${scaleBar} ${options.unit || "m"}`;
-  return { xticks: frame.xticks, yticks: frame.yticks, scaleBar };
+  canvas.dataset.background = options.background ? "drawn" : "";
+  return { xticks: frame.xticks, yticks: frame.yticks, scaleBar, background: Boolean(options.background) };
 }
 
 function plotLine(canvas, points, labels, options) { return plotLines(canvas, [{ points, color: "#1565c0" }], labels, options); }

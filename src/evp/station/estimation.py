@@ -10,7 +10,6 @@ answered at once with the current estimate, vision on the newest frame in a work
 from __future__ import annotations
 
 import math
-import os
 import sys
 import threading
 import time
@@ -139,23 +138,13 @@ def navigation_state(stage) -> dict:
     }
 
 
-# The vision process yields the CPU to the processes that answer (the station's event loop, each
-# session's estimator process, the phone's link): a late visual correction costs the filter
-# little, a late answer costs the vehicle its control loop. On idle cores it runs at full speed;
-# 5 (a third of a default process's share of a contested core), not 19: other work on the
-# station must not starve vision altogether (at 10, a machine at load 19 tracked no frame).
-VISION_NICENESS = 5
-
-
 def vision_main(connection, camera: CameraModel, settings_json: str) -> None:
     """The vision process (``EstimatorProcess``'s partner, ``station.vision_process``): the
-    configured estimator, fed by the estimator process's :class:`RemoteEstimator`, at a lower
-    priority (``VISION_NICENESS``)."""
+    configured estimator, fed by the estimator process's :class:`RemoteEstimator`."""
     from evp.config import Settings
     from evp.run_setup import make_estimator
     from evp.runtime.vision_process import serve_estimator
 
-    os.nice(VISION_NICENESS)
     serve_estimator(connection, make_estimator(camera, Settings.model_validate_json(settings_json)))
 
 

@@ -77,8 +77,10 @@ def guarded_http_protocol(settings: StationSettings, clock: Callable[[], float] 
             return self.cycle is None or self.cycle.response_complete
 
         def _headers_overdue(self) -> None:
+            if self.transport.is_closing():  # closed meanwhile (a closed TLS transport has no protocol left to ask)
+                return
             upgraded = self.transport.get_protocol() is not self  # a WebSocket now: not ours to time out
-            if self.cycle is None and not upgraded and not self.transport.is_closing():
+            if self.cycle is None and not upgraded:
                 self.transport.abort()
 
         def connection_lost(self, exc) -> None:

@@ -453,6 +453,10 @@ class StationSettings(_Section):
         True,
         description="each session's estimator (SLAM) in a process of its own beside the one that answers the frames: the answers never wait for SLAM's Python (measured with py-spy: the answering thread waited for the interpreter more than it worked); false: one process per session, as offline",
     )
+    cluster: str = Field(
+        "",
+        description="a Dask scheduler's address (tcp://HOST:8786): each session's estimator runs there, one long-lived actor per session, when the station's own cores are not enough; the answers, the navigation filter and the recording stay on the station",
+    )
     vision_wait_s: float = Field(
         1.0,
         gt=0,

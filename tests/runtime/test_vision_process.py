@@ -16,7 +16,7 @@ from evp.errors import DataError, EvpError
 from evp.estimator import Estimator
 from evp.pipeline import Pipeline, RunResult
 from evp.runtime.estimator_process import EstimatorProcess, ProcessEvents
-from evp.runtime.vision_process import RemoteEstimator, VisionProcessLost, serve_estimator
+from evp.runtime.vision_process import RemoteEstimator, VisionLost, serve_estimator
 from evp.types import Frame, PoseEstimate, TrackingState
 
 
@@ -93,9 +93,9 @@ def test_a_vision_process_that_is_gone_is_named():
     remote = RemoteEstimator(ours)
     assert remote.in_saved_map
     theirs.close()
-    with pytest.raises(VisionProcessLost):
+    with pytest.raises(VisionLost):
         remote.feed(_frames(1)[0])
-    assert not issubclass(VisionProcessLost, EvpError), "a lost process is not the user's input"
+    assert not issubclass(VisionLost, EvpError), "a lost process is not the user's input"
 
 
 def _answers_until_told(connection, vision) -> None:

@@ -116,6 +116,7 @@ class LivePipeline:
         self._closing = False
         self._wake = threading.Condition()
         self.visual_frames = 0  # frames the estimator took
+        self.failed: BaseException | None = None  # what ended vision (the estimator's process or worker lost, a bug)
         self._worker = threading.Thread(target=self._run, name="evp-vision", daemon=True)
         self._worker.start()
 
@@ -176,15 +177,21 @@ class LivePipeline:
             while more:  # in batches: the link's thread answers frames between them
                 with self._lock:
                     more = self._release(frame.timestamp, RELEASE_BATCH)
-            self.pipeline.process(frame)
+            try:
+                self.pipeline.process(frame)
+            except BaseException as exc:  # the link's thread sees it (failed) and ends the session's estimator
+                self.failed = exc
+                return
             self.visual_frames += 1
 
     def close(self) -> None:
-        """Let the worker finish the frame waiting, then finish the pipeline."""
+        """Let the worker finish the frame waiting, then finish the pipeline (unless vision
+        failed: then only the stages keep what came)."""
         with self._wake:
             self._closing = True
             self._wake.notify()
         self._worker.join()
         with self._lock:  # what came after the last frame answers no frame (as offline), but the stages keep it
             self._release(float("inf"))
-        self.pipeline.finish()
+        if self.failed is None:
+            self.pipeline.finish()

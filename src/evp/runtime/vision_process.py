@@ -1,19 +1,22 @@
-"""The estimator in a process of its own, beside the process that answers the frames.
+"""The estimator away from the process that answers the frames: in a vision process of its own
+beside it, or on a cluster's worker (a fleet).
 
 Live, a frame's answer (the navigation filter's prediction, a few ms of Python) and vision (SLAM,
 30-300 ms of Python a frame) used to share one interpreter. Python runs one thread at a time, so
 the answering thread waited for SLAM to hand over the interpreter at each step; on a loaded
 machine SLAM's thread is often descheduled while it holds it, and the answer waited for the
 operating system too (py-spy on a 30 fps stream: the answering thread spent more time waiting
-for the interpreter than working). In two processes they share only the CPUs.
+for the interpreter than working). In two processes they share only the CPUs; on a cluster, not
+even those.
 
-:func:`serve_estimator` runs in the vision process around any :class:`~evp.estimator.Estimator`;
-:class:`RemoteEstimator` is that estimator as the answering process sees it: ``feed`` sends the
-frame and waits (without the interpreter) for its estimate, with the estimator's reset counter
-and loop closures; ``settle`` is done by the vision process right after it has answered, as the
-pipeline would. A frame the estimator rejects comes back as :class:`FrameRejected` (an
-``EvpError``: the pipeline skips the frame); a vision process that dies is
-:class:`VisionProcessLost`.
+:class:`EstimatorServer` is the estimator's side, whatever carries the calls: a pipe
+(:func:`serve_estimator`, in the vision process) or a Dask actor (on a worker). The answering
+side sees an :class:`~evp.estimator.Estimator`: :class:`RemoteEstimator` over the pipe,
+:class:`ClusterEstimator` over the actor. ``feed`` sends the frame and waits (without the
+interpreter) for its estimate, with the estimator's reset counter and loop closures; ``settle``
+is done by the server right after it has answered, as the pipeline would. A frame the estimator
+rejects comes back as :class:`FrameRejected` (an ``EvpError``: the pipeline skips the frame); a
+server that is gone is :class:`VisionLost`.
 """
 
 from __future__ import annotations
@@ -26,21 +29,56 @@ from evp.types import Frame, PoseEstimate
 
 
 class FrameRejected(DataError):
-    """The estimator in the vision process refused a frame (its own message)."""
+    """The estimator in the vision process or on the cluster refused a frame (its own message)."""
 
 
-class VisionProcessLost(RuntimeError):
-    """The vision process ended without being asked to (killed, or a bug in the estimator)."""
+class VisionLost(RuntimeError):
+    """The vision process or the cluster's worker ended without being asked to (killed, or a bug
+    in the estimator)."""
+
+
+class EstimatorServer:
+    """An estimator's calls as plain data: what each side of a link needs, and nothing else."""
+
+    def __init__(self, estimator: Estimator):
+        self.estimator = estimator
+        self._closures_told = 0
+
+    def info(self) -> dict:
+        """Whether the estimator starts in a saved map, and whether it uses telemetry (an
+        EKF-SLAM predicts with the wheels; SLAM takes none, so none need be sent)."""
+        return {"in_saved_map": bool(getattr(self.estimator, "in_saved_map", False)), "observes": type(self.estimator).observe is not Estimator.observe}
+
+    def feed(self, frame: Frame) -> tuple[str, Any]:
+        """``("estimate", (estimate, reset counter, loop closures since the last answer))``, or
+        ``("rejected", why)`` for a frame the estimator refused."""
+        try:
+            estimate = self.estimator.feed(frame)
+        except EvpError as exc:
+            return "rejected", str(exc)
+        closures = list(getattr(self.estimator, "loop_closures", ()))
+        new, self._closures_told = closures[self._closures_told :], len(closures)
+        return "estimate", (estimate, int(getattr(self.estimator, "reset_counter", 0)), new)
+
+    def observe(self, record: Any) -> None:
+        self.estimator.observe(record)
+
+    def settle(self) -> None:
+        self.estimator.settle()
+
+    def finish(self) -> None:
+        self.estimator.finish()
+
+    def close(self) -> None:
+        self.estimator.close()
 
 
 def serve_estimator(connection, estimator: Estimator) -> None:
     """The vision process's loop: ``("feed", frame)``, ``("observe", record)`` and ``("finish",
-    None)`` from the answering process, until it finishes or goes away. Says ``("ready", info)``
-    first: whether the estimator starts in a saved map, and whether it uses telemetry (an EKF-SLAM
-    predicts with the wheels; SLAM takes none, so none is sent)."""
-    observes = type(estimator).observe is not Estimator.observe
-    connection.send(("ready", {"in_saved_map": bool(getattr(estimator, "in_saved_map", False)), "observes": observes}))
-    closures_told = 0
+    None)`` from the answering process, until it finishes or goes away; says ``("ready", info)``
+    first."""
+    server = EstimatorServer(estimator)
+    connection.send(("ready", server.info()))
     try:
         while True:
             try:
@@ -48,58 +86,65 @@ def serve_estimator(connection, estimator: Estimator) -> None:
             except EOFError:  # the answering process is gone
                 return
             if kind == "observe":
-                estimator.observe(payload)
+                server.observe(payload)
             elif kind == "feed":
-                try:
-                    estimate = estimator.feed(payload)
-                except EvpError as exc:
-                    connection.send(("rejected", str(exc)))
-                    continue
-                closures = list(getattr(estimator, "loop_closures", ()))
-                connection.send(("estimate", (estimate, int(getattr(estimator, "reset_counter", 0)), closures[closures_told:])))
-                closures_told = len(closures)
-                estimator.settle()
+                answer = server.feed(payload)
+                connection.send(answer)
+                if answer[0] == "estimate":  # as the pipeline: a rejected frame started nothing
+                    server.settle()
             elif kind == "finish":
-                estimator.finish()
+                server.finish()
                 connection.send(("finished", None))
                 return
     finally:
-        estimator.close()
+        server.close()
 
 
-class RemoteEstimator(Estimator):
-    """The estimator that :func:`serve_estimator` runs, seen from the answering process."""
+class _ServedEstimator(Estimator):
+    """The answering side's view of an :class:`EstimatorServer`: the estimator's counters
+    mirrored from each answer."""
 
-    def __init__(self, connection):
-        self._connection = connection
-        info = self._receive("ready")
+    def _start(self, info: dict) -> None:
         self.in_saved_map: bool = info["in_saved_map"]
         self._observes: bool = info["observes"]
         self.reset_counter = 0
         self.loop_closures: list = []
 
-    def _receive(self, expected: str) -> Any:
-        try:
-            kind, payload = self._connection.recv()
-        except (EOFError, OSError) as exc:
-            raise VisionProcessLost("the vision process ended") from exc
-        if kind == "rejected" and expected == "estimate":
+    def _answer(self, kind: str, payload: Any) -> PoseEstimate:
+        if kind == "rejected":
             raise FrameRejected(payload)
-        if kind != expected:
-            raise VisionProcessLost(f"the vision process said {kind!r} where {expected!r} was due")
-        return payload
+        if kind != "estimate":
+            raise VisionLost(f"the estimator's server said {kind!r} where an estimate was due")
+        estimate, self.reset_counter, closures = payload
+        self.loop_closures.extend(closures)
+        return estimate
+
+
+class RemoteEstimator(_ServedEstimator):
+    """The estimator that :func:`serve_estimator` runs in the vision process, over its pipe."""
+
+    def __init__(self, connection):
+        self._connection = connection
+        kind, info = self._receive()
+        if kind != "ready":
+            raise VisionLost(f"the vision process said {kind!r} where 'ready' was due")
+        self._start(info)
+
+    def _receive(self) -> tuple[str, Any]:
+        try:
+            return self._connection.recv()
+        except (EOFError, OSError) as exc:
+            raise VisionLost("the vision process ended") from exc
 
     def _send(self, message: tuple) -> None:
         try:
             self._connection.send(message)
         except (OSError, ValueError) as exc:
-            raise VisionProcessLost("the vision process ended") from exc
+            raise VisionLost("the vision process ended") from exc
 
     def feed(self, frame: Frame) -> PoseEstimate:
         self._send(("feed", frame))
-        estimate, self.reset_counter, closures = self._receive("estimate")
-        self.loop_closures.extend(closures)
-        return estimate
+        return self._answer(*self._receive())
 
     def observe(self, record: Any) -> None:
         if self._observes:
@@ -107,4 +152,50 @@ class RemoteEstimator(Estimator):
 
     def finish(self) -> None:
         self._send(("finish", None))
-        self._receive("finished")
+        if self._receive()[0] != "finished":
+            raise VisionLost("the vision process did not finish")
+
+
+class ClusterEstimator(_ServedEstimator):
+    """An estimator placed on a Dask cluster's worker: ``server_class(*args)`` (an
+    :class:`EstimatorServer` built there) as an actor, one per session for the session's life.
+    The actor runs one call at a time, in order, so the estimator sees its frames and telemetry as
+    a local one would; ``settle`` is sent after each answer and not waited for."""
+
+    def __init__(self, address: str, server_class: type, *args, timeout_s: float = 60.0):
+        from distributed import Client
+
+        self.timeout_s = timeout_s
+        try:  # not the process's default client: the actor's calls name theirs (as_current)
+            self._client = Client(address, timeout=timeout_s, set_as_default=False)
+            with self._client.as_current():
+                self._actor = self._client.submit(server_class, *args, actor=True).result(timeout=timeout_s)
+        except (OSError, TimeoutError) as exc:
+            raise VisionLost(f"the cluster at {address} gave no estimator ({exc})") from exc
+        self._start(self._call("info"))
+
+    def _call(self, method: str, *args, wait: bool = True):
+        try:
+            with self._client.as_current():
+                future = getattr(self._actor, method)(*args)
+                return future.result(timeout=self.timeout_s) if wait else future
+        except (OSError, TimeoutError, ValueError) as exc:  # the worker or the scheduler is gone
+            raise VisionLost(f"the cluster's estimator is gone ({exc})") from exc
+
+    def feed(self, frame: Frame) -> PoseEstimate:
+        estimate = self._answer(*self._call("feed", frame))
+        self._call("settle", wait=False)
+        return estimate
+
+    def observe(self, record: Any) -> None:
+        if self._observes:
+            self._call("observe", record, wait=False)
+
+    def finish(self) -> None:
+        try:
+            self._call("finish")
+        finally:
+            self._client.close()
+
+    def close(self) -> None:
+        self._client.close()

@@ -20,6 +20,7 @@ import numpy as np
 from evp.geometry.transforms import poses_from_xyz_quat, quat_xyzw_from_matrices
 from evp.pipeline import Pipeline, Sink
 from evp.runtime.live_pipeline import LiveAnswer, LivePipeline, estimator_jumps
+from evp.runtime.vision_process import ClusterEstimator, EstimatorServer, RemoteEstimator, serve_estimator
 from evp.station.protocol import Pose, ProtocolError, image_pixels
 from evp.types import CameraModel, Frame, PoseEstimate
 
@@ -138,14 +139,21 @@ def navigation_state(stage) -> dict:
     }
 
 
+class SessionEstimatorServer(EstimatorServer):
+    """A session's configured estimator (the same ``make_estimator`` as ``evp run``), built where
+    it runs: in the vision process, or as an actor on a cluster's worker (``station.cluster``)."""
+
+    def __init__(self, camera: CameraModel, settings_json: str):
+        from evp.config import Settings
+        from evp.run_setup import make_estimator
+
+        super().__init__(make_estimator(camera, Settings.model_validate_json(settings_json)))
+
+
 def vision_main(connection, camera: CameraModel, settings_json: str) -> None:
     """The vision process (``EstimatorProcess``'s partner, ``station.vision_process``): the
-    configured estimator, fed by the estimator process's :class:`RemoteEstimator`."""
-    from evp.config import Settings
-    from evp.run_setup import make_estimator
-    from evp.runtime.vision_process import serve_estimator
-
-    serve_estimator(connection, make_estimator(camera, Settings.model_validate_json(settings_json)))
+    session's estimator, fed by the estimator process's :class:`RemoteEstimator`."""
+    serve_estimator(connection, SessionEstimatorServer(camera, settings_json).estimator)
 
 
 def worker_main(connection, camera: CameraModel, settings_json: str, T_body_cam: list[float] | None = None, answers: str = "at_once", vision=None) -> None:
@@ -153,14 +161,19 @@ def worker_main(connection, camera: CameraModel, settings_json: str, T_body_cam:
     frames and telemetry, with the navigation stage when the mobile station gave its camera's
     extrinsic to the IMU (``T_body_cam``) and the estimator is SLAM; see
     :mod:`evp.runtime.live_pipeline` for how ``answers`` at once and vision share it. With
-    ``vision`` (the pipe to :func:`vision_main`'s process) the estimator runs there."""
+    ``vision`` (the pipe to :func:`vision_main`'s process) the estimator runs there; with
+    ``station.cluster`` on a worker of that Dask cluster."""
     from evp.config import Settings
     from evp.fusion.navigation_stage import NavigationStage
     from evp.run_setup import make_estimator, saved_map_georeference
-    from evp.runtime.vision_process import RemoteEstimator
 
     settings = Settings.model_validate_json(settings_json)
-    estimator = make_estimator(camera, settings) if vision is None else RemoteEstimator(vision)
+    if settings.station.cluster:
+        estimator = ClusterEstimator(settings.station.cluster, SessionEstimatorServer, camera, settings_json)
+    elif vision is not None:
+        estimator = RemoteEstimator(vision)
+    else:
+        estimator = make_estimator(camera, settings)
     sys.setswitchinterval(LINK_SWITCH_INTERVAL_S)
     lock = threading.Lock()
 
@@ -192,8 +205,11 @@ def worker_main(connection, camera: CameraModel, settings_json: str, T_body_cam:
 
 def _serve(connection, live: LivePipeline, send, reports: NavigationReports | None, stage) -> None:
     """The link's thread: telemetry to the stages, each frame answered (at once) and offered to
-    vision, until the station sends None or goes away."""
+    vision, until the station sends None or goes away, or vision fails (the process then ends
+    with the error, and the session's supervisor starts a new estimator)."""
     while True:
+        if live.failed is not None:
+            raise RuntimeError(f"vision failed: {live.failed}") from live.failed
         try:
             item = connection.recv()
         except EOFError:  # the station is gone

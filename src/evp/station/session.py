@@ -358,7 +358,8 @@ class LiveSession:
         self.store.insert("settings", session_id=self.id, t=time.time(), source="server", data_json=settings_json)
         events = ProcessEvents(self._worker_ready, self._worker_pose, self._worker_error, self._worker_dropped, self._worker_exit, self._worker_report)
         args = (self.camera, settings_json, self.T_body_cam, self.answers)
-        vision = (vision_main, (self.camera, settings_json)) if self.station.settings.station.vision_process else None
+        placement = self.station.settings.station
+        vision = (vision_main, (self.camera, settings_json)) if placement.vision_process and not placement.cluster else None
         self.worker = EstimatorProcess(worker_main, args, events, every_message=self.answers == "at_once", partner=vision)
         self.station.on_new_map(self)
         if self.degraded:

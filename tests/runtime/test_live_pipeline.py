@@ -155,3 +155,28 @@ def test_every_jump_of_the_estimator_steps_the_answers_reset_counter():
     finally:
         live.close()
     assert counters == [0, 1, 1, 2, 2]
+
+
+class _VisionThatFails(Estimator):
+    """Loses its vision process (or cluster worker) on the second frame."""
+
+    finished = False
+
+    def feed(self, frame: Frame) -> PoseEstimate:
+        if frame.index == 1:
+            raise RuntimeError("the vision process ended")
+        return PoseEstimate(frame.timestamp, np.eye(4), TrackingState.OK, 80)
+
+    def finish(self) -> None:
+        self.finished = True
+
+
+def test_vision_that_fails_is_told_to_the_link_and_not_finished():
+    estimator = _VisionThatFails()
+    live = LivePipeline(Pipeline(estimator))
+    live.frame(Frame(0.0, np.zeros((2, 2), np.uint8), index=0))
+    live.frame(Frame(0.1, np.zeros((2, 2), np.uint8), index=1))
+    live._worker.join(10)
+    assert isinstance(live.failed, RuntimeError) and "vision process ended" in str(live.failed)
+    live.close()
+    assert not estimator.finished, "a lost estimator is not asked to finish"

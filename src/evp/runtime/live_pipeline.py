@@ -29,6 +29,7 @@ from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
+from evp.estimator import Estimator
 from evp.io.dataset import TelemetryRecord
 from evp.pipeline import Pipeline, Sink
 from evp.types import Frame, PoseEstimate
@@ -113,6 +114,10 @@ class LivePipeline:
         self._latest = _Latest(pipeline.estimator)
         pipeline.sinks.insert(0, self._latest)
         self._waiting: Frame | None = None
+        # an estimator that takes telemetry itself (the EKF-SLAM's wheels) must not be given a
+        # record while it processes a frame: it then processes under the lock (answers at once
+        # wait for its frame, ~20 ms for the EKF-SLAM); SLAM takes none and runs outside it
+        self._estimator_observes = type(pipeline.estimator).observe is not Estimator.observe
         self._closing = False
         self._wake = threading.Condition()
         self.visual_frames = 0  # frames the estimator took
@@ -176,7 +181,11 @@ class LivePipeline:
             while more:  # in batches: the link's thread answers frames between them
                 with self._lock:
                     more = self._release(frame.timestamp, RELEASE_BATCH)
-            self.pipeline.process(frame)
+            if self._estimator_observes:  # the link's thread may release telemetry to it meanwhile
+                with self._lock:
+                    self.pipeline.process(frame)
+            else:
+                self.pipeline.process(frame)
             self.visual_frames += 1
 
     def close(self) -> None:

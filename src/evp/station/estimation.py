@@ -148,7 +148,7 @@ def worker_main(connection, camera: CameraModel, settings_json: str, T_body_cam:
     from evp.run_setup import make_estimator, saved_map_georeference
 
     settings = Settings.model_validate_json(settings_json)
-    estimator = make_estimator(camera, settings)
+    estimator = make_estimator(camera, settings, T_body_cam=None if T_body_cam is None else np.asarray(T_body_cam, float).reshape(4, 4))
     sys.setswitchinterval(LINK_SWITCH_INTERVAL_S)
     lock = threading.Lock()
 

@@ -5,7 +5,7 @@ The issue's targets: metric ATE without scale alignment (SE3) <= 3 cm over the l
 up to 100 features in the state, and the real-time ratio.
 
 Usage: python bench/wheel_robot.py [--out runs/wheel_robot] [--seeds 1 2 3] [--duration 60]
-       [--fps 15] [--skip-rendered] [--skip-wheels] [--wifi]
+       [--fps 15] [--skip-rendered] [--skip-wheels] [--wifi] [--wifi-long SECONDS]
 
 Each seed is rendered by `evp sim wheel-robot-room` (640x380, 60 s: one loop of the room and a
 half, at 15 fps, the paper's phone camera rate) into --out (an existing render with the same
@@ -24,6 +24,11 @@ wheels degraded (speeds x --degraded-scale, a wrong wheel radius, and the gyro o
 1-sigma of as much (the robot put down somewhere in the room, its heading known). Absolute ATE
 (no alignment: what WiFi bounds) and SE3 ATE, for the EKF-SLAM (camera + wheels + gyro) and for
 its filter on the wheels and gyro alone (no frames: dead reckoning), in-process.
+
+--wifi-long SECONDS adds the long table: the EKF-SLAM's filter on the wheels and gyro alone
+(no frames, the room's sensors sampled without rendering) over SECONDS of its loop (400 s: ten
+laps), with and without the WiFi fixes, the wheels as simulated and degraded as above, from the
+known start: where dead reckoning's error grows without bound, the fixes hold it at their own.
 
 The wheel table integrates the wheel speeds and yaw rates of TU Chemnitz's labyrinth robot and
 CMU's Plaza1 robot with `evp.fusion.planar_motion.dead_reckoning` (the EKF-SLAM's prediction)
@@ -254,6 +259,76 @@ def wifi_records(seed: int, folder: Path, scale: float, gyro_offset: float, star
     return records
 
 
+LONG_COLUMNS = [
+    ("seed", "{seed}"),
+    ("duration (s)", "{duration_s:.0f}"),
+    ("wheels", "{wheels}"),
+    ("WiFi", "{wifi}"),
+    ("error RMSE (m)", "{rmse_m:.2f}"),
+    ("max (m)", "{max_m:.2f}"),
+    ("last minute, mean (m)", "{last_minute_m:.2f}"),
+    ("fixes fused / gated", "{fixes}"),
+]
+
+
+def long_drive_records(seed: int, duration: float, scale: float, gyro_offset: float) -> list[dict]:
+    """The EKF-SLAM's filter on the wheels and gyro alone (no frames) over ``duration`` s of the
+    robot room's loop (the sensors sampled without rendering), with and without the WiFi scans,
+    as rendered and degraded: the horizontal error of the robot against the truth once a second."""
+    from dataclasses import replace
+
+    from evp.config import EkfSlamSettings, WifiSettings
+    from evp.ekf_slam.estimator import EkfSlamEstimator
+    from evp.sim.scenarios import SimOptions, wheel_robot_room
+    from evp.sim.sensors import sample_times, simulate_wheels, simulate_wifi, simulate_wifi_survey
+    from evp.wifi.methods import method_named
+    from evp.wifi.positioning import wifi_locator
+
+    options = SimOptions(seed=seed, duration_s=duration)
+    scenario = wheel_robot_room(options)
+
+    def state(rate: float):
+        return scenario.motion.state(sample_times(scenario.motion.start, scenario.motion.end, rate))
+
+    wheels = simulate_wheels(state(options.wheel.rate_hz), options.wheel, np.random.default_rng([seed, 4]))
+    scans = simulate_wifi(state(options.wifi.rate_hz), options.wifi, scenario.access_points, np.random.default_rng([seed, 6]))
+    survey = simulate_wifi_survey(state(10.0).position, options.wifi, scenario.access_points, np.random.default_rng([seed, 7]))
+    wifi = WifiSettings()
+    locator = wifi_locator(survey, method_named(wifi.method, survey, wifi), wifi.not_detected_dbm, wifi.place_tolerance_m)
+    start = state(options.wheel.rate_hz)
+    settings = EkfSlamSettings(start_pose=[*map(float, start.position[0, :2]), float(np.degrees(start.rotation[0].as_euler("ZYX")[0]))])
+    truth = state(1.0)
+    records = []
+    cases = [("as rendered", 1.0, 0.0), (f"speeds x{scale:g}", scale, 0.0), (f"speeds x{scale:g}, gyro {gyro_offset:+g} rad/s", scale, gyro_offset)]
+    for wheels_case, factor, offset in cases:
+        wheel = [replace(w, forward_speed_m_s=w.forward_speed_m_s * factor, yaw_rate_rad_s=w.yaw_rate_rad_s + offset) for w in wheels]
+        for fused in (False, True):
+            estimator = EkfSlamEstimator(scenario.camera, scenario.T_body_cam, settings, locator if fused else None)
+            stream = sorted([*wheel, *scans], key=lambda r: r.timestamp)
+            errors, k = [], 0
+            for t, position in zip(truth.time, truth.position):
+                while k < len(stream) and stream[k].timestamp <= t:
+                    estimator.observe(stream[k])
+                    k += 1
+                errors.append(np.linalg.norm(estimator.slam.filter.x[:2] - position[:2]))
+            errors = np.array(errors)
+            fixes = estimator.slam.filter.fixes
+            accepted = sum(1 for f in fixes if f.accepted)
+            records.append(
+                {
+                    "seed": seed,
+                    "duration_s": duration,
+                    "wheels": wheels_case,
+                    "wifi": "fused" if fused else "off",
+                    "rmse_m": float(np.sqrt(np.mean(errors**2))),
+                    "max_m": float(errors.max()),
+                    "last_minute_m": float(errors[-60:].mean()),
+                    "fixes": f"{accepted} / {len(fixes) - accepted}" if fused else "-",
+                }
+            )
+    return records
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=Path("runs/wheel_robot"))
@@ -266,6 +341,7 @@ def main() -> None:
     parser.add_argument("--degraded-scale", type=float, default=1.05, help="the degraded wheels' speed factor")
     parser.add_argument("--degraded-gyro", type=float, default=0.02, help="the degraded gyro's offset (rad/s)")
     parser.add_argument("--start-error", type=float, default=1.0, help="the unknown start's position error (m)")
+    parser.add_argument("--wifi-long", type=float, default=0.0, help="add the long WiFi table: the wheels alone over this many seconds (no rendering)")
     args = parser.parse_args()
     results = Results("wheel_robot", "python bench/wheel_robot.py " + " ".join(sys.argv[1:]))
     if not args.skip_rendered:
@@ -282,6 +358,13 @@ def main() -> None:
             folder = args.out / f"robot_seed{seed}"
             render(folder, seed, args.duration, args.fps)
             for record in wifi_records(seed, folder, args.degraded_scale, args.degraded_gyro, args.start_error):
+                print(table.add(record), flush=True)
+    if args.wifi_long:
+        table = results.table(
+            "wifi_long", LONG_COLUMNS, ["seed", "duration_s", "wheels", "wifi"], "WiFi fixes bounding the wheels' drift: the EKF-SLAM's filter without frames"
+        )
+        for seed in args.seeds:
+            for record in long_drive_records(seed, args.wifi_long, args.degraded_scale, args.degraded_gyro):
                 print(table.add(record), flush=True)
     if not args.skip_wheels:
         table = results.table("wheels", WHEEL_COLUMNS, ["dataset"], "Wheel odometry integrated by the EKF-SLAM's motion model, from the true start pose")

@@ -28,7 +28,8 @@ its filter on the wheels and gyro alone (no frames: dead reckoning), in-process.
 --wifi-long SECONDS adds the long table: the EKF-SLAM's filter on the wheels and gyro alone
 (no frames, the room's sensors sampled without rendering) over SECONDS of its loop (400 s: ten
 laps), with and without the WiFi fixes, the wheels as simulated and degraded as above, from the
-known start: where dead reckoning's error grows without bound, the fixes hold it at their own.
+known start: whether the fixes hold the error at their own where dead reckoning's grows (in
+this room they do not: the k-NN fixes are biased toward the room's middle, docs/decisions.md).
 
 The wheel table integrates the wheel speeds and yaw rates of TU Chemnitz's labyrinth robot and
 CMU's Plaza1 robot with `evp.fusion.planar_motion.dead_reckoning` (the EKF-SLAM's prediction)

@@ -75,7 +75,7 @@ def test_a_station_receives_ticks_and_drives_the_robot(tmp_path):
     """In-process station: the encoder counts are recorded verbatim and reach the estimator's batch
     as wheel records (a wrap and a jump among them); the operator's command reaches the robot's
     client, is repeated every command_interval_s while it drives, and after the link drops the
-    robot's watchdog stops it."""
+    robot's watchdog stops it; a reconnect does not set it moving again."""
     settings = Settings.model_validate({"robot": ROBOT.model_dump()})
     station = Station(tmp_path / "data", settings)
     try:
@@ -103,6 +103,9 @@ def test_a_station_receives_ticks_and_drives_the_robot(tmp_path):
         assert client.report.velocity_commands == 2
         session.detach(clean=False)  # the link drops: nothing reaches the robot any more
         session.repeat_drive(200.3)
+        assert client.report.velocity_commands == 2
+        session.attach(lambda text: client._handle(decode_text(text)))  # back: no motion without a new command
+        session.repeat_drive(201.0)
         assert client.report.velocity_commands == 2
         assert watchdog.velocity(0.1 + settings.robot.watchdog_timeout_s + 1e-3) == (0.0, 0.0) and watchdog.stops == 1
         session.recording.close()

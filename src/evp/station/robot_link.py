@@ -43,6 +43,11 @@ class RobotLink:
         self.command, self._sent_at = (command if moving else None), now
         return command
 
+    def link_lost(self) -> None:
+        """The link dropped: the command is not repeated after a reconnect (the robot's watchdog
+        has stopped it; it moves again only on a new command)."""
+        self.command = None
+
     def due(self, now: float) -> Velocity | None:
         """The current command again when ``command_interval_s`` has passed since it was last sent."""
         if self.command is None or now - self._sent_at < self.robot.command_interval_s:

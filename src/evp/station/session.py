@@ -144,6 +144,7 @@ class LiveSession:
         self.send = None
         self.connected = False
         self.disconnected_at = time.monotonic()
+        self.robot.link_lost()
         self.store.update_session(self.id, status="ended" if clean else "interrupted", ended_at=time.time(), **self.count_columns())
         self.event(
             "info" if clean else "warning",

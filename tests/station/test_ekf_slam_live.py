@@ -1,6 +1,6 @@
 """The station running ``estimator: ekf-slam`` for a session (seed 001 live): a short render of the
-robot room streamed as the robot would (frames, and its wheels as encoder counts), answered with
-metric poses that follow the rendered path."""
+robot room streamed as ``evp stream --encoder-ticks`` sends it (frames, and the wheels as encoder
+counts), answered with metric poses that follow the rendered path."""
 
 from __future__ import annotations
 
@@ -14,15 +14,14 @@ from evp.config import Settings
 from evp.eval.association import associate
 from evp.eval.metrics import Alignment, align_trajectory, ape_translation
 from evp.io.registry import open_dataset
-from evp.mobile.robot import encoder_readings
-from evp.mobile.sources import telemetry_message
+from evp.mobile.sources import open_source, telemetry_message
 from evp.sim.generate import generate
 from evp.sim.scenarios import SimOptions
 from evp.station.auth import DEV
 from evp.station.base_station import Station
 from evp.station.estimation import pose_matrix
 from evp.station.protocol import PROTOCOL_VERSION, Config, Hello, encode, encode_image
-from evp.types import Trajectory
+from evp.types import EncoderCounts, Trajectory, WheelOdometry
 from tests.station.test_durability import Phone
 
 FRAMES = 24
@@ -38,10 +37,9 @@ def robot_room(tmp_path_factory):
 def test_the_station_runs_ekf_slam_on_a_streamed_robot(tmp_path, robot_room):
     dataset = robot_room
     settings = Settings.model_validate({"estimator": "ekf-slam"})
-    frames = list(dataset.frames())[:FRAMES]
-    end = frames[-1].timestamp
-    ticks = [r for r in encoder_readings(dataset.wheel, settings.robot) if r.timestamp <= end]
-    items = sorted([*frames, *ticks], key=lambda item: item.timestamp)
+    source = open_source(str(dataset.root), max_frames=FRAMES, encoder_robot=settings.robot)  # evp stream --encoder-ticks
+    items = list(source.items)
+    assert not any(isinstance(item, WheelOdometry) for item in items) and any(isinstance(item, EncoderCounts) for item in items)
 
     async def scenario() -> Phone:
         station = Station(tmp_path / "data", settings)
@@ -55,7 +53,7 @@ def test_the_station_runs_ekf_slam_on_a_streamed_robot(tmp_path, robot_room):
                 if hasattr(item, "image"):
                     session.on_binary(encode_image(item.image, item.index, item.timestamp, "png").pack(), time.time())
                     await phone.until(lambda m, seq=item.index: m.type in ("pose", "error", "dropped") and getattr(m, "seq", None) == seq, what="the answer")
-                else:
+                elif isinstance(item, EncoderCounts):  # the robot's wheels (its IMU and WiFi are not needed here)
                     session.on_text(encode(telemetry_message(item)), time.time())
         finally:
             await station.stop()

@@ -1,7 +1,7 @@
-"""Seed 001's Figure 4 with today's numbers: detection + description, matching and match quality
-of ORB, SIFT, AKAZE, BRISK and SURF on real frames at QVGA (320x240), VGA (640x480) and 640x380, on
-one core. A detector the installed OpenCV lacks is named as absent in the run's note (OpenCV 5
-keeps AKAZE, BRISK and the patented SURF in opencv_contrib only).
+"""Seed 001's Figure 4 with today's numbers (evp.eval.feature_timing; ``evp bench features`` runs
+the same measurement): detection + description, matching and match quality of ORB, SIFT, AKAZE,
+BRISK and SURF on real frames at QVGA (320x240), VGA (640x480) and 640x380, on one core. A
+detector the installed OpenCV lacks is named as absent in the run's note.
 
 Usage: python bench/feature_detectors.py [--pairs 20]
 
@@ -17,24 +17,14 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
-from functools import partial
 from pathlib import Path
 
 import cv2
-import numpy as np
 from results import Results
 
+from evp.eval.feature_timing import absent_note, frame_pairs, measure_all
+
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
-SIZES = {"QVGA 320x240": (320, 240), "640x380": (640, 380), "VGA 640x480": (640, 480)}
-RATIO = 0.8  # Lowe's ratio test
-DETECTORS = {  # name: (constructor name in cv2, arguments, descriptor norm)
-    "ORB": ("ORB_create", (1000,), cv2.NORM_HAMMING),
-    "SIFT": ("SIFT_create", (1000,), cv2.NORM_L2),
-    "AKAZE": ("AKAZE_create", (), cv2.NORM_HAMMING),
-    "BRISK": ("BRISK_create", (), cv2.NORM_HAMMING),
-    "SURF": ("SURF_create", (), cv2.NORM_L2),
-}
 COLUMNS = [
     ("detector", "{detector}"),
     ("size", "{size}"),
@@ -46,67 +36,19 @@ COLUMNS = [
 ]
 
 
-def frame_pairs(count: int) -> list[tuple[np.ndarray, np.ndarray]]:
-    euroc = sorted((SHARED / "euroc_mh_01_easy_moving_360" / "mav0" / "cam0" / "data").glob("*.png"))
-    kitti = sorted((SHARED / "kitti_odom_06_f000-050").rglob("*.png"))
-    pairs = []
-    for files in (euroc, kitti):
-        for a, b in zip(files[: count // 2], files[1 : count // 2 + 1]):
-            pairs.append((cv2.imread(str(a), cv2.IMREAD_GRAYSCALE), cv2.imread(str(b), cv2.IMREAD_GRAYSCALE)))
-    return pairs
-
-
-def measure(make, norm: int, pairs: list, size: tuple[int, int]) -> dict:
-    detector, matcher = make(), cv2.BFMatcher(norm)
-    keypoints, detect_ms, match_ms, kept, inliers = [], [], [], [], []
-    for first, second in pairs:
-        described = []
-        for image in (first, second):
-            image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
-            start = time.perf_counter()
-            points, descriptors = detector.detectAndCompute(image, None)
-            detect_ms.append(1000 * (time.perf_counter() - start))
-            keypoints.append(len(points))
-            described.append((points, descriptors))
-        (p1, d1), (p2, d2) = described
-        if d1 is None or d2 is None or len(p1) < 8 or len(p2) < 8:
-            continue
-        start = time.perf_counter()
-        good = [m for m, n in (pair for pair in matcher.knnMatch(d1, d2, k=2) if len(pair) == 2) if m.distance < RATIO * n.distance]
-        match_ms.append(1000 * (time.perf_counter() - start))
-        kept.append(len(good))
-        if len(good) >= 8:
-            a = np.float32([p1[m.queryIdx].pt for m in good])
-            b = np.float32([p2[m.trainIdx].pt for m in good])
-            _, mask = cv2.findFundamentalMat(a, b, cv2.FM_RANSAC, 1.0, 0.999)
-            inliers.append(float(mask.mean()) if mask is not None else 0.0)
-    return {
-        "keypoints": float(np.median(keypoints)),
-        "detect_ms": float(np.median(detect_ms)),
-        "match_ms": float(np.median(match_ms)) if match_ms else None,
-        "matches": float(np.median(kept)) if kept else None,
-        "inlier_percent": 100 * float(np.median(inliers)) if inliers else None,
-    }
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--pairs", type=int, default=20)
     args = parser.parse_args()
     cv2.setNumThreads(1)
-    pairs = frame_pairs(args.pairs)
+    pairs = frame_pairs(SHARED, args.pairs)
     results = Results("feature_detectors", "python bench/feature_detectors.py " + " ".join(sys.argv[1:]))
     table = results.table("detectors", COLUMNS, ["detector", "size"], f"{len(pairs)} consecutive real frame pairs, one thread")
     print(table.header())
-    absent = [name for name, (constructor, _, _) in DETECTORS.items() if not hasattr(cv2, constructor)]
-    for name, (constructor, arguments, norm) in DETECTORS.items():
-        if name in absent:
-            continue
-        for size_name, size in SIZES.items():
-            record = {"detector": name, "size": size_name, **measure(partial(getattr(cv2, constructor), *arguments), norm, pairs, size)}
-            print(table.add(record), flush=True)
-    if absent:
-        note = f"Not in the installed OpenCV {cv2.__version__}: {', '.join(absent)} (OpenCV 5 moved AKAZE and BRISK to opencv_contrib; SURF is patented and only there)."
+    for record in measure_all(pairs):
+        print(table.add(record), flush=True)
+    note = absent_note()
+    if note:
         print(note)
         results.note(note)
 

@@ -5,6 +5,7 @@ Every command that writes results writes the effective settings beside them (``s
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Literal
 
@@ -615,6 +616,40 @@ class EkfSlamSettings(_Section):
     consistency_probability: float = Field(
         0.999, gt=0.5, lt=1, description="their summed NIS beyond this chi-square quantile: the filter is inconsistent (warning)"
     )
+    start_pose: list[float] | None = Field(
+        None,
+        min_length=3,
+        max_length=3,
+        description="the robot's start [x m, y m, heading deg] in the radio map's frame (a dock surveyed in the building); none: the world is the start. WiFi fixes (wifi.radio_map) need it",
+    )
+    start_position_sigma_m: float = Field(0.05, ge=0, description="1 sigma of start_pose's position, per axis (a dock marked on the floor)")
+    start_heading_sigma_deg: float = Field(2.0, ge=0, description="1 sigma of start_pose's heading")
+
+
+class RobotSettings(_Section):
+    """A wheel robot on the station's link (seed 001: the robot sends its encoder counts, the
+    station may drive it): its encoders, and the watchdog that stops it when the link drops."""
+
+    metres_per_tick: float = Field(
+        2 * math.pi * 0.035 / 360, gt=0, description="wheel travel per encoder tick: the rendered robot's 3.5 cm wheel, 360 ticks per turn"
+    )
+    counter_bits: int = Field(16, ge=8, le=64, description="the encoder counters' width: they wrap at 2^bits (a microcontroller's 16-bit timer)")
+    wheel_base_m: float = Field(0.3, gt=0, description="distance between the wheels: the turn rate from the encoders when the robot sends no gyro")
+    max_wheel_speed_m_s: float = Field(2.0, gt=0, description="an encoder difference meaning more than this is a jump (reset, glitch), not motion")
+    watchdog_timeout_s: float = Field(
+        0.5,
+        gt=0,
+        description="the robot stops (zero velocity) when no velocity command came for this long: the station repeats them while it drives (ROS cmd_vel timeouts: 0.25-0.5 s)",
+    )
+    command_interval_s: float = Field(0.1, gt=0, description="the station repeats the current velocity command this often (10 Hz): well inside the watchdog")
+    max_linear_m_s: float = Field(0.5, gt=0, description="the largest forward speed a command may ask (the rendered robot drives at 0.3 m/s)")
+    max_angular_rad_s: float = Field(1.5, gt=0, description="the largest turn rate a command may ask")
+
+    @model_validator(mode="after")
+    def _watchdog_outlasts_the_repeats(self) -> RobotSettings:
+        if self.watchdog_timeout_s <= self.command_interval_s:
+            raise ValueError(f"watchdog_timeout_s ({self.watchdog_timeout_s:g}) must exceed command_interval_s ({self.command_interval_s:g})")
+        return self
 
 
 class WifiSettings(_Section):
@@ -632,6 +667,17 @@ class WifiSettings(_Section):
         default_factory=lambda: [1, 3, 5, 7, 9, 11, 15, 20, 25, 30],
         min_length=1,
         description="wknn_cv: the k values leave-one-place-out cross-validation inside the radio map chooses from",
+    )
+    radio_map: str | None = Field(
+        None,
+        description="a radio map (evp wifi build, or the rendered room's wifi_radio_map.npz): estimator ekf-slam then fuses the dataset's WiFi scans as weak absolute positions",
+    )
+    method: Literal["knn3", "wknn_paper", "wknn_cv"] = Field("wknn_cv", description="the method that locates the scans fused (evp wifi eval compares them)")
+    gate_probability: float = Field(
+        0.9973,
+        gt=0.5,
+        lt=1,
+        description="a WiFi fix whose innovation is beyond this chi-square quantile is not fused (3 sigma: a fix 2-4 m off is common, one beyond that is a wrong place)",
     )
 
 
@@ -651,6 +697,7 @@ class Settings(_Section):
     station: StationSettings = StationSettings()
     mavlink: MavlinkSettings = MavlinkSettings()
     wifi: WifiSettings = WifiSettings()
+    robot: RobotSettings = RobotSettings()
     ekf_slam: EkfSlamSettings = EkfSlamSettings()
     markers: MarkerSettings = MarkerSettings()
     autopilot: AutopilotSettings = AutopilotSettings()

@@ -32,6 +32,12 @@ class Estimator(ABC):
         """Estimate the camera pose for one frame (frames must arrive in time order); a frame it
         cannot use raises an ``EvpError`` naming why (the pipeline skips it and goes on)."""
 
+    @property
+    def uses_telemetry(self) -> bool:
+        """Whether :meth:`observe` does anything (an EKF-SLAM predicts with the wheels; SLAM takes
+        no telemetry, so none need be given to it, or sent to it in another process)."""
+        return type(self).observe is not Estimator.observe
+
     def observe(self, record: Any) -> None:
         """A telemetry record (IMU, wheels, GPS...), each before the first frame not older than it,
         in time order. Default: the estimator uses none (stages after it may)."""

@@ -20,6 +20,7 @@ if TYPE_CHECKING:
     from evp.fusion.navigation_stage import NavigationStage
     from evp.pipeline import RunResult
     from evp.slam.map import Map
+    from evp.wifi.positioning import WifiLocator
 
 
 def camera_for(dataset: Dataset, settings: Settings) -> CameraModel:
@@ -97,8 +98,9 @@ def resolve_settings(settings: Settings, dataset: Dataset) -> Settings:
     return settings.model_copy(update={"estimator": estimator, "eval": evaluation})
 
 
-def make_estimator(camera: CameraModel, settings: Settings, dataset: Dataset | None = None) -> Estimator:
-    """The configured estimator; ``auto`` picks by the frame spacing of the dataset."""
+def make_estimator(camera: CameraModel, settings: Settings, dataset: Dataset | None = None, T_body_cam: np.ndarray | None = None) -> Estimator:
+    """The configured estimator; ``auto`` picks by the frame spacing of the dataset. Live (no
+    dataset), ``T_body_cam`` is the camera's mounting the mobile station sent (its config)."""
     kind = settings.estimator
     if kind == "auto":
         kind = auto_estimator(dataset)
@@ -107,7 +109,7 @@ def make_estimator(camera: CameraModel, settings: Settings, dataset: Dataset | N
 
         return NadirHomographyOdometry(camera)
     if kind == "ekf-slam":
-        return ekf_slam_estimator(camera, settings, dataset)
+        return ekf_slam_estimator(camera, settings, dataset, T_body_cam)
     if kind == "slam":
         from evp.io.vocabulary_files import load_configured_vocabulary
         from evp.runtime.slam import build_slam
@@ -138,15 +140,39 @@ def saved_map_georeference(settings: Settings) -> MapGeoreference | None:
     return read_map_georeference(Path(settings.slam.map))
 
 
-def ekf_slam_estimator(camera: CameraModel, settings: Settings, dataset: Dataset | None) -> Estimator:
-    """Seed 001's EKF-SLAM: it needs the camera's mounting on the robot and the robot's wheels."""
+def ekf_slam_estimator(camera: CameraModel, settings: Settings, dataset: Dataset | None, T_body_cam: np.ndarray | None = None) -> Estimator:
+    """Seed 001's EKF-SLAM: it needs the camera's mounting on the robot and the robot's wheels
+    (a dataset's, checked here; live, the wheel or encoder telemetry the robot streams)."""
     from evp.ekf_slam.estimator import EkfSlamEstimator
 
-    if dataset is None or dataset.T_body_cam is None:
-        raise UsageError("estimator ekf-slam needs the camera's mounting on the robot (the dataset's camera-body extrinsic, T_body_cam)")
-    if not dataset.wheel:
+    if dataset is not None:
+        T_body_cam = dataset.T_body_cam
+    if T_body_cam is None:
+        where = "the dataset's camera-body extrinsic" if dataset is not None else "T_body_cam in the mobile station's config"
+        raise UsageError(f"estimator ekf-slam needs the camera's mounting on the robot ({where}, T_body_cam)")
+    if dataset is not None and not dataset.wheel:
         raise DatasetError(dataset.root, "estimator ekf-slam needs wheel odometry (the robot's encoders and gyro); this dataset has none")
-    return EkfSlamEstimator(camera, dataset.T_body_cam, settings.ekf_slam)
+    locator = configured_wifi_locator(settings) if dataset is None or dataset.wifi else None
+    return EkfSlamEstimator(camera, np.asarray(T_body_cam, float), settings.ekf_slam, locator, settings.wifi.gate_probability)
+
+
+def configured_wifi_locator(settings: Settings) -> WifiLocator | None:
+    """The locator of ``wifi.method`` on the radio map ``wifi.radio_map`` names (None: it names
+    none), for the EKF-SLAM to fuse WiFi scans with; its fixes are in the radio map's frame, so
+    the robot's start must be placed there (``ekf_slam.start_pose``)."""
+    if not settings.wifi.radio_map:
+        return None
+    if settings.ekf_slam.start_pose is None:
+        raise UsageError(
+            "wifi.radio_map is set but ekf_slam.start_pose is not: WiFi fixes are in the radio map's frame, so the robot's start must be given in it ([x m, y m, heading deg])"
+        )
+    from evp.io.wifi_uji import load_radio_map
+    from evp.wifi.methods import method_named
+    from evp.wifi.positioning import wifi_locator
+
+    survey = load_radio_map(Path(settings.wifi.radio_map))
+    method = method_named(settings.wifi.method, survey, settings.wifi)
+    return wifi_locator(survey, method, settings.wifi.not_detected_dbm, settings.wifi.place_tolerance_m)
 
 
 def navigation_off(dataset: Dataset, settings: Settings) -> str | None:

@@ -87,6 +87,18 @@ class WheelOdometry:
 
 
 @dataclass(frozen=True)
+class EncoderCounts:
+    """A robot's raw wheel encoder counters (one per wheel, left first; unsigned, wrapping at the
+    counter's width) and, when it has one, its gyro's yaw rate (rad/s, counter-clockwise).
+    :class:`evp.fusion.wheel_encoders.EncoderOdometry` turns successive ones into
+    :class:`WheelOdometry`."""
+
+    timestamp: float
+    counts: tuple[int, ...]
+    yaw_rate_rad_s: float = float("nan")
+
+
+@dataclass(frozen=True)
 class WifiScan:
     """Received signal strength (dBm) per access point (BSSID)."""
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from evp.experiments.seed001_convergence import CASES, run_case
 from tests.cli.conftest import evp
+from tests.conftest import shared
 
 
 def test_experiments_are_listed_and_an_unknown_one_is_a_usage_error():
@@ -30,3 +31,15 @@ def test_the_accelerometer_drifts_far_beyond_the_wheels():
     truth, paths = paths_for_seed(1)
     end = {name: _errors(truth, *paths[name])[-1] for name in METHODS}
     assert end[METHODS[0]] > 10.0 and end[METHODS[1]] < 0.5 and end[METHODS[2]] < 0.5
+
+
+def test_on_the_real_car_the_wheels_and_gyro_drift_least():
+    """comma2k19's 60 s, 1 km: the accelerometer integrated twice ends tens of metres off, the CAN
+    wheels with the gyro least, the wheels' own turn rate (the rear wheels' difference over an
+    assumed 1.6 m track) worst."""
+    from evp.experiments.seed001_dead_reckoning import COMMA_FOLDER, METHODS, _errors, comma_paths
+
+    truth, paths = comma_paths(shared(COMMA_FOLDER))
+    end = {name: _errors(truth, *paths[name])[-1] for name in METHODS}
+    assert end[METHODS[0]] > 30.0 and end[METHODS[1]] < 0.5 * end[METHODS[0]] and end[METHODS[2]] > end[METHODS[1]]
+    assert all(times[-1] - times[0] > 59.0 for times, _ in paths.values())

@@ -12,7 +12,7 @@ import traceback
 import typer
 
 from evp import __version__
-from evp.cli import align, camera, config, dataset, evaluation, experiment, fly, sim, station, sweep, vocabulary, wifi
+from evp.cli import align, bench, camera, config, dataset, evaluation, experiment, fly, sim, station, sweep, vocabulary, wifi
 from evp.errors import EvpError, ExitCode
 
 HELP = """EVP: where is the vehicle, from its phone camera.
@@ -38,6 +38,7 @@ for group in (dataset, sim, fly, align, evaluation, camera, station, experiment,
 app.add_typer(config.app, name="config")
 app.add_typer(vocabulary.app, name="vocabulary")
 app.add_typer(wifi.app, name="wifi")
+app.add_typer(bench.app, name="bench")
 _state = {"debug": False}
 
 

@@ -68,11 +68,12 @@ def pairing_code(
 
 
 def run_stream(
-    source_spec, url, realtime, encoding, jpeg_quality, camera, max_frames, credential, resume, cafile, fingerprint, insecure, out, quiet, echo
+    source_spec, url, realtime, encoding, jpeg_quality, camera, max_frames, credential, resume, cafile, fingerprint, insecure, out, quiet, echo, robot=None
 ) -> dict:
     """Stream a source to a station; the poses received are echoed (unless quiet) and written to
     ``out`` (poses.tum: the tracked ones; answers.jsonl: every answer with its fields and its
-    frame-sent to answer-received latency; summary.json) when given. Returns the summary."""
+    frame-sent to answer-received latency; summary.json) when given. ``robot`` (RobotSettings):
+    the wheel records go as that robot's encoder counts. Returns the summary."""
     import asyncio
 
     from evp.io.trajectory import tum_text
@@ -82,7 +83,7 @@ def run_stream(
 
     if encoding not in ("auto", "jpeg", "png", "raw"):
         raise UsageError(f"--encoding {encoding!r}: choose jpeg, png, raw or auto")
-    source = open_source(source_spec, camera, max_frames)
+    source = open_source(source_spec, camera, max_frames, encoder_robot=robot)
     if encoding == "auto":
         encoding = "png" if source.lossless else "jpeg"
 
@@ -125,6 +126,10 @@ def stream(
     insecure: bool = typer.Option(False, "--insecure", help="Accept any certificate (its fingerprint is printed): for tests on a trusted network only."),
     out: Path | None = typer.Option(None, "--out", help="Write the received poses here (poses.tum, answers.jsonl, summary.json)."),
     quiet: bool = typer.Option(False, "--quiet", help="Print only the summary, not each pose."),
+    encoder_ticks: bool = typer.Option(
+        False, "--encoder-ticks", help="Send the wheel records as a wheel robot's encoder counts (robot section of --config): a robot's simulator."
+    ),
+    config: Path | None = typer.Option(None, "--config", help="Settings YAML (its robot section, with --encoder-ticks)."),
 ) -> None:
     """Stream to a base station as a mobile station would; prints each pose, then a JSON summary.
     The station's certificate is verified (--cafile, --fingerprint, or a public one) unless --insecure;
@@ -134,8 +139,13 @@ def stream(
 
     writable_folder(out)
     credential = device_credential(url, pair, credential_file, cafile, fingerprint, insecure)
+    robot = None
+    if encoder_ticks:
+        from evp.config import load_settings
+
+        robot = load_settings(config).robot
     summary = run_stream(
-        source, url, realtime, encoding, jpeg_quality, camera, max_frames, credential, resume, cafile, fingerprint, insecure, out, quiet, typer.echo
+        source, url, realtime, encoding, jpeg_quality, camera, max_frames, credential, resume, cafile, fingerprint, insecure, out, quiet, typer.echo, robot
     )
     typer.echo(json.dumps(summary))
     if summary["poses_received"] and not summary["poses_tracked"]:

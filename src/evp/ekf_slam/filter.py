@@ -1,4 +1,4 @@
-"""The EKF of seed 001: state, prediction from the wheels and the gyro, bearing updates, and the
+"""The EKF of seed 001: state, prediction from the wheels and the gyro, bearing updates, WiFi fixes, and the
 features' life (initialised in inverse depth, made Euclidean, deleted).
 
 State (SI units; the world is the robot's start: x forward, y left, z up, on the ground):
@@ -14,6 +14,8 @@ feature        ``(X, Y, Z)`` (3), in the order of :attr:`EkfSlamFilter.features`
 Measurements are undistorted, normalised image coordinates ``(x/z, y/z)`` of a feature in the
 camera; seed 001's pixel form is the same up to the intrinsics. The camera's rotation on the robot
 is the calibration's; the robot turns about the world's vertical only (the paper's 2-D robot).
+A WiFi fix (:meth:`EkfSlamFilter.position_fix`) measures the robot's x, y directly; it needs the
+world to be the radio map's, so the start pose is then set in that frame (:meth:`set_start`).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from scipy.stats import chi2
 
 from evp.config import EkfSlamSettings
 from evp.ekf_slam.inverse_depth import EUCLIDEAN_SIZE, INVERSE_DEPTH_SIZE, euclidean, linearity_index, ray_angles, ray_direction, ray_direction_derivatives
+from evp.fusion.innovation import Innovation, gated_innovation
 from evp.fusion.planar_motion import unicycle_step
 
 X, Y, YAW, BIAS = 0, 1, 2, 3
@@ -105,6 +108,7 @@ class EkfSlamFilter:
     time: float | None = field(default=None, init=False)
     warnings: list[str] = field(default_factory=list, init=False)
     updates: list[UpdateRecord] = field(default_factory=list, init=False)
+    fixes: list[Innovation] = field(default_factory=list, init=False)
     inconsistent: bool = field(default=False, init=False)
     _last_input: tuple[float, float, float] = field(default=(0.0, 0.0, 1.0), init=False)  # speed, yaw rate, noise factor
     _next_id: int = field(default=0, init=False)
@@ -263,6 +267,27 @@ class EkfSlamFilter:
         nis = float(innovation @ weighted)
         self._watch(UpdateRecord(timestamp, nis, 2 * k))
         return nis
+
+    def position_fix(self, timestamp: float, position: np.ndarray, sigma_m: float, gate_probability: float) -> Innovation:
+        """A weak absolute position of the robot (a WiFi fix: ``position`` (2,) m in the world,
+        ``sigma_m`` per axis), fused at the filter's time (a scan is at most one wheel period
+        older) when its innovation passes the chi-square gate of ``gate_probability`` (the
+        navigation filter's gate, :mod:`evp.fusion.innovation`). Every fix leaves its
+        :class:`Innovation` in ``fixes``."""
+        H = np.zeros((2, len(self.x)))
+        H[0, X] = H[1, Y] = 1.0
+        residual = np.asarray(position, float) - self.x[[X, Y]]
+        PHt = self.P[:, [X, Y]]
+        innovation, S_inv = gated_innovation(timestamp, "wifi", residual, PHt[[X, Y]] + np.eye(2) * sigma_m**2, gate_probability)
+        self.fixes.append(innovation)
+        if innovation.accepted:
+            gain = PHt @ S_inv
+            self.x += gain @ residual
+            self.P -= gain @ PHt.T
+            self.P += self.P.T
+            self.P *= 0.5
+            self._wrap_angles()
+        return innovation
 
     def _watch(self, record: UpdateRecord) -> None:
         """Innovation consistency: the summed NIS of the last updates against its chi-square bound;

@@ -12,13 +12,13 @@ folder); without it the job fails, and the report says so."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 from evp.batch.jobs import Job, Outcome
 from evp.config import Settings
 from evp.eval.flight_report import flight_summary
 from evp.experiments.batched import Report, Row, figure, markdown_table
+from evp.experiments.shared_data import shared_data_folder
 from evp.fusion.flight import process_flight
 from evp.io.registry import open_dataset
 from evp.pipeline import run_dataset
@@ -31,7 +31,7 @@ PAPER_TABLE_II_MEAN_RANGE_M = {"2d+baro": (0.87, 3.62), "3d+baro": (1.03, 6.70)}
 
 
 def data_folder() -> Path:
-    return Path(os.environ.get("EVP_SHARED_DATA", Path.cwd().parent / "shared" / "data")) / FOLDER
+    return shared_data_folder(FOLDER)
 
 
 def jobs(variant: str | None, quick: bool) -> list[Job]:

@@ -12,9 +12,9 @@ import numpy as np
 
 from evp.errors import DatasetError
 from evp.io.image_headers import read_image_header
-from evp.types import BaroSample, BeaconRange, CameraModel, Frame, GpsFix, ImuSample, RangeSample, Trajectory, WheelOdometry, WifiScan
+from evp.types import BaroSample, BeaconRange, CameraModel, EncoderCounts, Frame, GpsFix, ImuSample, RangeSample, Trajectory, WheelOdometry, WifiScan
 
-TelemetryRecord = ImuSample | GpsFix | BaroSample | WheelOdometry | WifiScan | RangeSample | BeaconRange
+TelemetryRecord = ImuSample | GpsFix | BaroSample | WheelOdometry | EncoderCounts | WifiScan | RangeSample | BeaconRange
 
 
 @dataclass

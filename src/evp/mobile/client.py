@@ -38,6 +38,7 @@ from evp.station.protocol import (
     Pose,
     ProtocolError,
     Status,
+    Velocity,
     Welcome,
     decode_text,
     encode,
@@ -87,6 +88,7 @@ class StreamReport:
     frames_skipped: int = 0  # resumed: frames the station already had
     frames_refused: int = 0  # answered with an error
     telemetry_sent: int = 0
+    velocity_commands: int = 0  # drive commands the station sent (a wheel robot)
     poses: dict[int, Pose] = field(default_factory=dict)
     dropped: dict[int, str] = field(default_factory=dict)
     errors: list[str] = field(default_factory=list)
@@ -104,6 +106,7 @@ class StreamReport:
             "frames_skipped": self.frames_skipped,
             "frames_refused": self.frames_refused,
             "telemetry_sent": self.telemetry_sent,
+            "velocity_commands": self.velocity_commands,
             "poses_received": len(self.poses),
             "poses_tracked": tracked,
             "frames_dropped": len(self.dropped),
@@ -127,6 +130,7 @@ class StreamClient:
         insecure: bool = False,
         on_pose: Callable[[Pose], None] | None = None,
         log: Callable[[str], None] | None = None,
+        on_velocity: Callable[[Velocity], None] | None = None,
     ):
         self.url = mobile_url(url)
         self.token = token
@@ -135,6 +139,7 @@ class StreamClient:
         self.pin = fingerprint.upper() if fingerprint else None
         self.insecure = insecure
         self.on_pose = on_pose
+        self.on_velocity = on_velocity  # a wheel robot's drive (evp.mobile.robot.VelocityWatchdog.command)
         self.log = log or (lambda text: print(text, file=sys.stderr))
         self.report = StreamReport()
         self._answered = asyncio.Event()
@@ -293,5 +298,9 @@ class StreamClient:
         elif isinstance(message, Status):
             if message.state in ("running", "stopped", "failed"):
                 self._ready.set()
+        elif isinstance(message, Velocity):
+            self.report.velocity_commands += 1
+            if self.on_velocity:
+                self.on_velocity(message)
         elif isinstance(message, Enable):
             self.log(f"estimation {'enabled' if message.enabled else 'disabled'} by the station")

@@ -14,9 +14,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from evp.config import RobotSettings
 from evp.errors import CalibrationError, DataError, DatasetError
 from evp.io.dataset import TelemetryRecord
-from evp.types import BaroSample, CameraModel, Frame, GpsFix, ImuSample, WheelOdometry, WifiScan
+from evp.types import BaroSample, CameraModel, EncoderCounts, Frame, GpsFix, ImuSample, WheelOdometry, WifiScan
 
 
 @dataclass
@@ -64,13 +65,19 @@ def _open_capture(spec: str, camera_spec: str | None, max_frames: int | None) ->
     return StreamSource(spec, camera, float(fps), _capture_frames(capture, max_frames), live=True, lossless=False, skipped=[])
 
 
-def _dataset_items(dataset, max_frames: int | None, errors: list[DatasetError]) -> Iterator[Frame | TelemetryRecord]:
-    """Frames (decoded one at a time) and telemetry merged in time order, up to ``max_frames``."""
+def _dataset_items(dataset, max_frames: int | None, errors: list[DatasetError], robot: RobotSettings | None = None) -> Iterator[Frame | TelemetryRecord]:
+    """Frames (decoded one at a time) and telemetry merged in time order, up to ``max_frames``;
+    with ``robot``, the wheel records go as the encoder counts that robot would send."""
     import heapq
     import itertools
+    from dataclasses import replace
 
     frames = dataset.frames(errors)
     telemetry = dataset.telemetry()
+    if robot is not None:
+        from evp.mobile.robot import encoder_readings
+
+        telemetry = heapq.merge(replace(dataset, wheel=[]).telemetry(), encoder_readings(dataset.wheel, robot), key=lambda record: record.timestamp)
     if max_frames is not None and max_frames < dataset.num_frames:
         frames = itertools.islice(frames, max_frames)
         end = dataset.frame_times[max_frames - 1]
@@ -85,9 +92,12 @@ def _first_frame_size(dataset, spec: str) -> tuple[int, int]:
     return first.image.shape[1], first.image.shape[0]
 
 
-def open_source(spec: str, camera_spec: str | None = None, max_frames: int | None = None, fmt: str | None = None) -> StreamSource:
+def open_source(
+    spec: str, camera_spec: str | None = None, max_frames: int | None = None, fmt: str | None = None, encoder_robot: RobotSettings | None = None
+) -> StreamSource:
     """``camera:N`` (local camera N), an http(s)/rtsp URL (MJPEG, e.g. IP Webcam), else a dataset,
-    recording or video file (format auto-detected as for ``evp run``)."""
+    recording or video file (format auto-detected as for ``evp run``). ``encoder_robot``: a
+    dataset's wheel records are sent as that robot's encoder counts (a wheel robot's simulator)."""
     if spec.startswith("camera:") or spec.startswith(("http://", "https://", "rtsp://")):
         return _open_capture(spec, camera_spec, max_frames)
     from evp.io.registry import open_dataset
@@ -107,7 +117,7 @@ def open_source(spec: str, camera_spec: str | None = None, max_frames: int | Non
         fps = float(1.0 / np.median(np.diff(dataset.frame_times)))
     lossless = dataset.format != "video"
     # ``errors`` fills as frames are read: undecodable ones are skipped and reported
-    items = _dataset_items(dataset, max_frames, errors)
+    items = _dataset_items(dataset, max_frames, errors, encoder_robot)
     return StreamSource(dataset.name, camera, fps, items, live=False, lossless=lossless, skipped=errors, T_body_cam=dataset.T_body_cam)
 
 
@@ -115,7 +125,7 @@ def telemetry_message(record: TelemetryRecord):
     """The protocol message for a telemetry record, or None for kinds the protocol does not carry."""
     import math
 
-    from evp.station.protocol import BaroTelemetry, GpsTelemetry, ImuTelemetry, WheelTelemetry, WifiTelemetry
+    from evp.station.protocol import BaroTelemetry, EncoderTelemetry, GpsTelemetry, ImuTelemetry, WheelTelemetry, WifiTelemetry
 
     def optional(value: float) -> float | None:
         return value if math.isfinite(value) else None
@@ -134,6 +144,8 @@ def telemetry_message(record: TelemetryRecord):
             timestamp=record.timestamp, wheel_speeds_m_s=list(record.wheel_speeds_m_s),
             forward_speed_m_s=optional(record.forward_speed_m_s), yaw_rate_rad_s=optional(record.yaw_rate_rad_s),
         )  # fmt: skip
+    if isinstance(record, EncoderCounts):
+        return EncoderTelemetry(timestamp=record.timestamp, counts=list(record.counts), yaw_rate_rad_s=optional(record.yaw_rate_rad_s))
     if isinstance(record, WifiScan):
         return WifiTelemetry(timestamp=record.timestamp, rssi_dbm=dict(record.rssi_dbm))
     return None

@@ -113,6 +113,10 @@ class LivePipeline:
         self._latest = _Latest(pipeline.estimator)
         pipeline.sinks.insert(0, self._latest)
         self._waiting: Frame | None = None
+        # an estimator that takes telemetry itself (the EKF-SLAM's wheels) must not be given a
+        # record while it processes a frame: it then processes under the lock (answers at once
+        # wait for its frame, ~20 ms for the EKF-SLAM); SLAM takes none and runs outside it
+        self._estimator_observes = pipeline.estimator.uses_telemetry
         self._closing = False
         self._wake = threading.Condition()
         self.visual_frames = 0  # frames the estimator took
@@ -178,7 +182,11 @@ class LivePipeline:
                 with self._lock:
                     more = self._release(frame.timestamp, RELEASE_BATCH)
             try:
-                self.pipeline.process(frame)
+                if self._estimator_observes:  # the link's thread may release telemetry to it meanwhile
+                    with self._lock:
+                        self.pipeline.process(frame)
+                else:
+                    self.pipeline.process(frame)
             except BaseException as exc:  # the link's thread sees it (failed) and ends the session's estimator
                 self.failed = exc
                 return

@@ -47,7 +47,7 @@ class EstimatorServer:
     def info(self) -> dict:
         """Whether the estimator starts in a saved map, and whether it uses telemetry (an
         EKF-SLAM predicts with the wheels; SLAM takes none, so none need be sent)."""
-        return {"in_saved_map": bool(getattr(self.estimator, "in_saved_map", False)), "observes": type(self.estimator).observe is not Estimator.observe}
+        return {"in_saved_map": bool(getattr(self.estimator, "in_saved_map", False)), "observes": self.estimator.uses_telemetry}
 
     def feed(self, frame: Frame) -> tuple[str, Any]:
         """``("estimate", (estimate, reset counter, loop closures since the last answer))``, or
@@ -103,6 +103,10 @@ def serve_estimator(connection, estimator: Estimator) -> None:
 class _ServedEstimator(Estimator):
     """The answering side's view of an :class:`EstimatorServer`: the estimator's counters
     mirrored from each answer."""
+
+    @property
+    def uses_telemetry(self) -> bool:
+        return self._observes
 
     def _start(self, info: dict) -> None:
         self.in_saved_map: bool = info["in_saved_map"]

@@ -2,7 +2,8 @@
 
 ``mav0/cam0`` images + ``sensor.yaml`` (intrinsics, distortion, T_BS), ``mav0/imu0``,
 ``mav0/state_groundtruth_estimate0`` (body pose, velocity, IMU biases), and the sensors EuRoC
-lacks in the same CSV style: ``gps0``, ``baro0``, ``range0``, ``wheel0``, ``wifi0``. ``sim.yaml``
+lacks in the same CSV style: ``gps0``, ``baro0``, ``range0``, ``wheel0``, ``wifi0`` (with the survey
+of its access points as ``wifi_radio_map.npz`` beside ``mav0``). ``sim.yaml``
 records the scenario, every option, the geodetic origin and the events (spoofing, outages, drops).
 """
 
@@ -19,6 +20,7 @@ import numpy as np
 import yaml
 
 from evp.io.trajectory import write_trajectory
+from evp.io.wifi_uji import save_radio_map
 from evp.sim import sensors
 from evp.sim.camera_effects import render_frame
 from evp.sim.scenarios import Scenario, SimOptions, build_scenario
@@ -215,6 +217,16 @@ def _write_other_sensors(scenario: Scenario, options: SimOptions, mav0: Path) ->
             "#timestamp [ns],bssid,rssi [dBm]",
             [[int(_ns(s.timestamp)), bssid, rssi] for s in scans for bssid, rssi in s.rssi_dbm.items()],
         )
+        write_wifi_survey(scenario, options, mav0.parent)
+
+
+def write_wifi_survey(scenario: Scenario, options: SimOptions, out: Path) -> Path:
+    """``out/wifi_radio_map.npz``: the survey of the room's access points (``evp wifi build``'s
+    format), the radio map ``wifi.radio_map`` can name to fuse the rendered scans."""
+    path = scenario.motion.state(sensors.sample_times(scenario.motion.start, scenario.motion.end, 10.0)).position
+    survey = sensors.simulate_wifi_survey(path, options.wifi, scenario.access_points, np.random.default_rng([options.seed, 7]))
+    save_radio_map(survey, out / "wifi_radio_map.npz")
+    return out / "wifi_radio_map.npz"
 
 
 def _description(scenario: Scenario, options: SimOptions, rendered: int, dropped: list[int]) -> dict:

@@ -59,6 +59,7 @@ class Station:
         self.governor = LoadGovernor(settings.station)
         self._frames_counted: dict[str, int] = {}  # frames received per session at the last tick
         self._status_task: asyncio.Task | None = None
+        self._drive_task: asyncio.Task | None = None
 
     # --- lifecycle ------------------------------------------------------------------------------
 
@@ -87,11 +88,13 @@ class Station:
 
             self.mavlink = MavlinkRoutes(self.mavlink_url, self.settings.mavlink, problem)
         self._status_task = asyncio.get_running_loop().create_task(self._status_loop())
+        self._drive_task = asyncio.get_running_loop().create_task(self._drive_loop())
         self.store.log_event(None, "info", "started", f"station {__version__} started, data in {self.data_dir}")
 
     async def stop(self) -> None:
-        if self._status_task is not None:
-            self._status_task.cancel()
+        for task in (self._status_task, self._drive_task):
+            if task is not None:
+                task.cancel()
         for session in list(self.sessions.values()):
             await session.close("ended" if session.ended else "interrupted")
         self.sessions.clear()
@@ -327,6 +330,15 @@ class Station:
                     await self._release(session, f"not resumed within {window:g} s: estimator stopped, recording closed")
                     continue
                 self.on_status(session)
+
+    async def _drive_loop(self) -> None:
+        """Wheel robots being driven get their command again every ``robot.command_interval_s``."""
+        while True:
+            await asyncio.sleep(self.settings.robot.command_interval_s)
+            now = time.time()  # the clock the session's messages are recorded on
+            for session in list(self.sessions.values()):
+                if session.connected:
+                    session.repeat_drive(now)
 
     def _govern(self, lag_s: float) -> None:
         """The overload governor's tick (evp.station.overload): one frame rate for every session

@@ -139,21 +139,28 @@ def navigation_state(stage) -> dict:
     }
 
 
+def make_session_estimator(camera: CameraModel, settings, T_body_cam: list[float] | None):
+    """A session's configured estimator: the same ``make_estimator`` as ``evp run``, with the
+    camera's extrinsic the mobile station sent (the EKF-SLAM's camera on the robot)."""
+    from evp.run_setup import make_estimator
+
+    return make_estimator(camera, settings, T_body_cam=None if T_body_cam is None else np.asarray(T_body_cam, float).reshape(4, 4))
+
+
 class SessionEstimatorServer(EstimatorServer):
-    """A session's configured estimator (the same ``make_estimator`` as ``evp run``), built where
-    it runs: in the vision process, or as an actor on a cluster's worker (``station.cluster``)."""
+    """A session's estimator built where it runs: in the vision process, or as an actor on a
+    cluster's worker (``station.cluster``)."""
 
-    def __init__(self, camera: CameraModel, settings_json: str):
+    def __init__(self, camera: CameraModel, settings_json: str, T_body_cam: list[float] | None = None):
         from evp.config import Settings
-        from evp.run_setup import make_estimator
 
-        super().__init__(make_estimator(camera, Settings.model_validate_json(settings_json)))
+        super().__init__(make_session_estimator(camera, Settings.model_validate_json(settings_json), T_body_cam))
 
 
-def vision_main(connection, camera: CameraModel, settings_json: str) -> None:
+def vision_main(connection, camera: CameraModel, settings_json: str, T_body_cam: list[float] | None = None) -> None:
     """The vision process (``EstimatorProcess``'s partner, ``station.vision_process``): the
     session's estimator, fed by the estimator process's :class:`RemoteEstimator`."""
-    serve_estimator(connection, SessionEstimatorServer(camera, settings_json).estimator)
+    serve_estimator(connection, SessionEstimatorServer(camera, settings_json, T_body_cam).estimator)
 
 
 def worker_main(connection, camera: CameraModel, settings_json: str, T_body_cam: list[float] | None = None, answers: str = "at_once", vision=None) -> None:
@@ -165,15 +172,15 @@ def worker_main(connection, camera: CameraModel, settings_json: str, T_body_cam:
     ``station.cluster`` on a worker of that Dask cluster."""
     from evp.config import Settings
     from evp.fusion.navigation_stage import NavigationStage
-    from evp.run_setup import make_estimator, saved_map_georeference
+    from evp.run_setup import saved_map_georeference
 
     settings = Settings.model_validate_json(settings_json)
     if settings.station.cluster:
-        estimator = ClusterEstimator(settings.station.cluster, SessionEstimatorServer, camera, settings_json)
+        estimator = ClusterEstimator(settings.station.cluster, SessionEstimatorServer, camera, settings_json, T_body_cam)
     elif vision is not None:
         estimator = RemoteEstimator(vision)
     else:
-        estimator = make_estimator(camera, settings)
+        estimator = make_session_estimator(camera, settings, T_body_cam)
     sys.setswitchinterval(LINK_SWITCH_INTERVAL_S)
     lock = threading.Lock()
 

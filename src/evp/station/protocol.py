@@ -212,6 +212,18 @@ class WheelTelemetry(_Message):
     yaw_rate_rad_s: Finite | None = None
 
 
+class EncoderTelemetry(_Message):
+    """A wheel robot's raw encoder counters (left first; they wrap at ``robot.counter_bits``) and
+    its gyro's yaw rate when it has one: the station makes them wheel odometry
+    (:mod:`evp.fusion.wheel_encoders`), wraps and jumps included."""
+
+    type: Literal["telemetry"] = "telemetry"
+    kind: Literal["encoder"] = "encoder"
+    timestamp: Timestamp
+    counts: list[Annotated[int, Field(ge=0, lt=2**64)]] = Field(min_length=1, max_length=16)
+    yaw_rate_rad_s: Finite | None = None
+
+
 class WifiTelemetry(_Message):
     type: Literal["telemetry"] = "telemetry"
     kind: Literal["wifi"] = "wifi"
@@ -219,14 +231,22 @@ class WifiTelemetry(_Message):
     rssi_dbm: dict[Annotated[str, Field(max_length=64)], Finite] = Field(default_factory=dict, max_length=512)
 
 
-TELEMETRY = {"imu": ImuTelemetry, "gps": GpsTelemetry, "baro": BaroTelemetry, "range": RangeTelemetry, "wheel": WheelTelemetry, "wifi": WifiTelemetry}
-Telemetry = ImuTelemetry | GpsTelemetry | BaroTelemetry | RangeTelemetry | WheelTelemetry | WifiTelemetry
+TELEMETRY = {
+    "imu": ImuTelemetry,
+    "gps": GpsTelemetry,
+    "baro": BaroTelemetry,
+    "range": RangeTelemetry,
+    "wheel": WheelTelemetry,
+    "encoder": EncoderTelemetry,
+    "wifi": WifiTelemetry,
+}
+Telemetry = ImuTelemetry | GpsTelemetry | BaroTelemetry | RangeTelemetry | WheelTelemetry | EncoderTelemetry | WifiTelemetry
 
 
 def telemetry_record(message: Telemetry):
     """The pipeline's record for a telemetry message (absent optional numbers become NaN, as the
     dataset readers give them); a GPS fix without lock has a NaN position."""
-    from evp.types import BaroSample, GpsFix, ImuSample, RangeSample, WheelOdometry, WifiScan
+    from evp.types import BaroSample, EncoderCounts, GpsFix, ImuSample, RangeSample, WheelOdometry, WifiScan
 
     def value(number: float | None) -> float:
         return math.nan if number is None else number
@@ -244,6 +264,8 @@ def telemetry_record(message: Telemetry):
         return RangeSample(message.timestamp, message.distance_m)
     if isinstance(message, WheelTelemetry):
         return WheelOdometry(message.timestamp, tuple(message.wheel_speeds_m_s), value(message.forward_speed_m_s), value(message.yaw_rate_rad_s))
+    if isinstance(message, EncoderTelemetry):
+        return EncoderCounts(message.timestamp, tuple(message.counts), value(message.yaw_rate_rad_s))
     return WifiScan(message.timestamp, dict(message.rssi_dbm))
 
 
@@ -298,6 +320,16 @@ class Bye(_Message):
     type: Literal["bye"] = "bye"
 
 
+class Velocity(_Message):
+    """The station drives a wheel robot: forward speed and turn rate (counter-clockwise). The
+    station repeats the current command every ``robot.command_interval_s``; the robot stops by
+    itself when none came for ``robot.watchdog_timeout_s`` (:mod:`evp.mobile.robot`)."""
+
+    type: Literal["velocity"] = "velocity"
+    linear_m_s: Finite
+    angular_rad_s: Finite
+
+
 class Heartbeat(_Message):
     """Sent by both ends on an idle link (``station.heartbeat_interval_s``): a link that stays
     silent for ``heartbeat_timeout_s`` is dead even without a close frame. Link-level: it is
@@ -332,8 +364,9 @@ MESSAGES: dict[str, type[_Message]] = {
     "error": Error,
     "bye": Bye,
     "heartbeat": Heartbeat,
+    "velocity": Velocity,
 }
-Message = Hello | Welcome | Config | Enable | Status | Pose | Dropped | Log | Error | Bye | Heartbeat | Telemetry
+Message = Hello | Welcome | Config | Enable | Status | Pose | Dropped | Log | Error | Bye | Heartbeat | Velocity | Telemetry
 
 
 def _reject_constant(name: str) -> float:

@@ -217,20 +217,34 @@ async def sessions(request: Request) -> JSONResponse:
 
 
 async def command(request: Request) -> JSONResponse:
-    """start: a new map; stop: pause estimation (frames still recorded); resume: continue the map."""
+    """start: a new map; stop: pause estimation (frames still recorded); resume: continue the map;
+    velocity: drive a wheel robot."""
     station: Station = request.app.state.station
     session = station.sessions.get(request.path_params["session_id"])
     action = request.path_params["action"]
     if session is None:
         return JSONResponse({"error": "no live session with that id"}, status_code=404)
+    if action == "velocity":
+        return await _velocity(request, session)
     if action == "start":
         session.restart_estimator()
         session.set_estimating(True, "operator")
     elif action in ("stop", "resume"):
         session.set_estimating(action == "resume", "operator")
     else:
-        return JSONResponse({"error": f"unknown action {action!r} (start, stop, resume)"}, status_code=404)
+        return JSONResponse({"error": f"unknown action {action!r} (start, stop, resume, velocity)"}, status_code=404)
     return JSONResponse({"status": session.status().model_dump()})
+
+
+async def _velocity(request: Request, session) -> JSONResponse:
+    """Drive a wheel robot: ``{"linear_m_s": ..., "angular_rad_s": ...}`` (zero stops it)."""
+    try:
+        body = await _json_object(request)
+        linear, angular = float(body["linear_m_s"]), float(body["angular_rad_s"])
+        command = session.drive(linear, angular, time.time())
+    except (ValueError, KeyError, TypeError) as exc:
+        return JSONResponse({"error": f"velocity: {exc}"}, status_code=400)
+    return JSONResponse({"sent": command.model_dump()})
 
 
 def _no_such_session(session_id: str) -> JSONResponse | None:

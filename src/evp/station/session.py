@@ -38,6 +38,7 @@ from evp.station.protocol import (
     ProtocolError,
     Status,
     Telemetry,
+    Velocity,
     check_image_header,
     decode_image,
     decode_text,
@@ -45,8 +46,9 @@ from evp.station.protocol import (
     telemetry_record,
 )
 from evp.station.recording import SessionRecording
+from evp.station.robot_link import RobotLink
 from evp.station.store import SessionStore
-from evp.types import CameraModel
+from evp.types import CameraModel, EncoderCounts
 
 log = logging.getLogger(__name__)
 
@@ -115,6 +117,7 @@ class LiveSession:
         self._frames: dict[int, ImageMessage] = {}  # sent to the estimator, not answered yet
         self._telemetry_batch: list = []  # records for the estimator, sent with the next frame
         self._estimator_deaths = 0  # since the last pose or config (the supervisor's count)
+        self.robot = RobotLink(station.settings.robot)  # a wheel robot's encoders and drive commands
 
     # --- link ---------------------------------------------------------------------------------
 
@@ -141,6 +144,7 @@ class LiveSession:
         self.send = None
         self.connected = False
         self.disconnected_at = time.monotonic()
+        self.robot.link_lost()
         self.store.update_session(self.id, status="ended" if clean else "interrupted", ended_at=time.time(), **self.count_columns())
         self.event(
             "info" if clean else "warning",
@@ -223,8 +227,27 @@ class LiveSession:
             )
         if isinstance(message, GpsTelemetry) and message.latitude_deg is not None:
             self.station.on_gps(self, message)  # the operator's plot: fused track against GPS
-        if self.worker is not None:  # the estimator fuses it (the navigation filter), whether estimating or not
-            self._telemetry_batch.append(telemetry_record(message))
+        record = telemetry_record(message)
+        if isinstance(record, EncoderCounts):  # every reading, estimator or not: the next difference needs it
+            record, warnings = self.robot.wheel_record(record)
+            for text in warnings:
+                self.event("warning", "encoder", text)
+        if self.worker is not None and record is not None:  # the estimator fuses it (the navigation filter), whether estimating or not
+            self._telemetry_batch.append(record)
+
+    def drive(self, linear_m_s: float, angular_rad_s: float, now: float) -> Velocity:
+        """Drive the robot: the command is recorded, sent now and repeated (:meth:`repeat_drive`)
+        until another replaces it; zero stops it."""
+        command = self.robot.drive(linear_m_s, angular_rad_s, now)
+        self.recording.text(encode(command), now)
+        self.reply(command)
+        return command
+
+    def repeat_drive(self, now: float) -> None:
+        """Send the current command again when it is due (the station's drive loop calls this)."""
+        command = self.robot.due(now)
+        if command is not None:
+            self.reply(command)
 
     def _config(self, message: Config, now: float) -> None:
         self._estimator_deaths = 0  # the mobile station's config restarts an estimator the supervisor gave up on
@@ -359,7 +382,7 @@ class LiveSession:
         events = ProcessEvents(self._worker_ready, self._worker_pose, self._worker_error, self._worker_dropped, self._worker_exit, self._worker_report)
         args = (self.camera, settings_json, self.T_body_cam, self.answers)
         placement = self.station.settings.station
-        vision = (vision_main, (self.camera, settings_json)) if placement.vision_process and not placement.cluster else None
+        vision = (vision_main, (self.camera, settings_json, self.T_body_cam)) if placement.vision_process and not placement.cluster else None
         self.worker = EstimatorProcess(worker_main, args, events, every_message=self.answers == "at_once", partner=vision)
         self.station.on_new_map(self)
         if self.degraded:

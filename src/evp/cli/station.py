@@ -68,7 +68,22 @@ def pairing_code(
 
 
 def run_stream(
-    source_spec, url, realtime, encoding, jpeg_quality, camera, max_frames, credential, resume, cafile, fingerprint, insecure, out, quiet, echo
+    source_spec,
+    url,
+    realtime,
+    encoding,
+    jpeg_quality,
+    camera,
+    max_frames,
+    credential,
+    resume,
+    cafile,
+    fingerprint,
+    insecure,
+    out,
+    quiet,
+    echo,
+    device="evp-stream",
 ) -> dict:
     """Stream a source to a station; the poses received are echoed (unless quiet) and written to
     ``out`` (poses.tum: the tracked ones; answers.jsonl: every answer with its fields and its
@@ -91,7 +106,9 @@ def run_stream(
             t = " ".join(f"{v:.4f}" for v in pose.t)
             echo(f"pose {pose.seq} t={pose.timestamp:.3f} {pose.state} xyz=({t}) quality={pose.quality}")
 
-    client = StreamClient(url, token=credential, cafile=cafile, fingerprint=fingerprint, insecure=insecure, on_pose=show, log=lambda text: echo(text, err=True))
+    client = StreamClient(
+        url, token=credential, device=device, cafile=cafile, fingerprint=fingerprint, insecure=insecure, on_pose=show, log=lambda text: echo(text, err=True)
+    )
     report = asyncio.run(client.run(source, realtime, encoding, jpeg_quality, resume))
     summary = report.summary()
     if out is not None:
@@ -125,6 +142,9 @@ def stream(
     insecure: bool = typer.Option(False, "--insecure", help="Accept any certificate (its fingerprint is printed): for tests on a trusted network only."),
     out: Path | None = typer.Option(None, "--out", help="Write the received poses here (poses.tum, answers.jsonl, summary.json)."),
     quiet: bool = typer.Option(False, "--quiet", help="Print only the summary, not each pose."),
+    device: str = typer.Option(
+        "evp-stream", "--device", help="This mobile station's name (hello.device): the station's mavlink.vehicles and autopilot.vehicles key on it."
+    ),
 ) -> None:
     """Stream to a base station as a mobile station would; prints each pose, then a JSON summary.
     The station's certificate is verified (--cafile, --fingerprint, or a public one) unless --insecure;
@@ -135,7 +155,7 @@ def stream(
     writable_folder(out)
     credential = device_credential(url, pair, credential_file, cafile, fingerprint, insecure)
     summary = run_stream(
-        source, url, realtime, encoding, jpeg_quality, camera, max_frames, credential, resume, cafile, fingerprint, insecure, out, quiet, typer.echo
+        source, url, realtime, encoding, jpeg_quality, camera, max_frames, credential, resume, cafile, fingerprint, insecure, out, quiet, typer.echo, device
     )
     typer.echo(json.dumps(summary))
     if summary["poses_received"] and not summary["poses_tracked"]:

@@ -16,7 +16,7 @@ import numpy as np
 
 from evp.errors import CalibrationError, DataError, DatasetError
 from evp.io.dataset import TelemetryRecord
-from evp.types import BaroSample, CameraModel, Frame, GpsFix, ImuSample, WheelOdometry, WifiScan
+from evp.types import BaroSample, CameraModel, Frame, GpsFix, ImuSample, RangeSample, WheelOdometry, WifiScan
 
 
 @dataclass
@@ -115,7 +115,7 @@ def telemetry_message(record: TelemetryRecord):
     """The protocol message for a telemetry record, or None for kinds the protocol does not carry."""
     import math
 
-    from evp.station.protocol import BaroTelemetry, GpsTelemetry, ImuTelemetry, WheelTelemetry, WifiTelemetry
+    from evp.station.protocol import BaroTelemetry, GpsTelemetry, ImuTelemetry, RangeTelemetry, WheelTelemetry, WifiTelemetry
 
     def optional(value: float) -> float | None:
         return value if math.isfinite(value) else None
@@ -136,4 +136,6 @@ def telemetry_message(record: TelemetryRecord):
         )  # fmt: skip
     if isinstance(record, WifiScan):
         return WifiTelemetry(timestamp=record.timestamp, rssi_dbm=dict(record.rssi_dbm))
+    if isinstance(record, RangeSample):  # out of range (NaN) is no reading: nothing to send
+        return RangeTelemetry(timestamp=record.timestamp, distance_m=record.distance_m) if record.distance_m > 0 else None
     return None

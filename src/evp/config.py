@@ -374,6 +374,11 @@ class MarkerSettings(_Section):
     duplicate_tolerance_m: float = Field(
         0.15, gt=0, description="a marker observed this far from where the map has it is a duplicate id (two markers, one id): rejected and logged"
     )
+    lone_marker_tolerance_m: float = Field(
+        0.3,
+        gt=0,
+        description="the only mapped marker in view putting the camera this far from where its motion has it is a duplicate id: rejected and logged; wider than duplicate_tolerance_m as a lone marker at the image edge jitters by +-6 cm and the velocity from it more (seed 0's exploration: 0.16 m on a genuine one)",
+    )
     refine_every_markers: int = Field(
         10, ge=1, description="the metric map is refined by its pose graph after this many new markers (a refinement costs ~10-50 ms: not every frame)"
     )

@@ -34,7 +34,7 @@ TRIM_MAX_ERROR_M_S = 0.15
 # A single mapped marker in view is checked against where the camera's motion puts it (a second
 # marker with its id would teleport the vehicle): only this long after the last fix, as a blind
 # stretch (the map's edge) leaves too little of a prediction to judge a marker by (0.6 m/s for
-# 0.5 s with a 20 % velocity error is 6 cm, well inside markers.duplicate_tolerance_m).
+# 0.5 s with a 20 % velocity error is 6 cm, well inside markers.lone_marker_tolerance_m).
 PREDICTION_HORIZON_S = 0.5
 
 

@@ -84,7 +84,7 @@ class MarkerMap:
         """Map one frame's markers and localise the camera from the mapped ones (None if none).
         ``expected_xy`` is where the camera's own motion puts it (the autopilot's prediction from
         the last frame): a single mapped marker that puts the camera farther than
-        ``duplicate_tolerance_m`` from there has no other marker to outvote it, and is a second
+        ``lone_marker_tolerance_m`` from there has no other marker to outvote it, and is a second
         marker with its id (or a misread) as surely as one the others disagree with."""
         observations = self._without_repeated_ids(time_s, observations)
         if self.root is None and observations:
@@ -143,7 +143,7 @@ class MarkerMap:
 
     def _near_expected(self, time_s: float, marker_id: int, camera_xy: np.ndarray, expected_xy: np.ndarray) -> list[int]:
         jump = float(np.linalg.norm(camera_xy - expected_xy))
-        if jump <= self.settings.duplicate_tolerance_m:
+        if jump <= self.settings.lone_marker_tolerance_m:
             return [marker_id]
         self._rejected.add(marker_id)
         self.log(

@@ -135,9 +135,9 @@ def main() -> None:
         if args.save_seeds is None or args.from_seeds is not None:
             _mission_rows(table, records)
         if args.from_seeds is not None:
-            results.note(
-                f"mission rows from seed records flown in parallel processes ({', '.join(p.name for p in args.from_seeds)}): --seed-range, --save-seeds"
-            )
+            flown = [r["seed"] for r in records]
+            table.data["caption"] = f"{len(flown)} seeded missions per row (edge: {args.edge_runs} runs), {args.resolution} renders"
+            results.note(f"mission rows over seeds {flown}, flown in parallel processes (--seed-range, --save-seeds) and aggregated with --from-seeds")
     if "edge" in parts:
         _edge_row(table, args.edge_runs, resolution)
     if "speed" in parts:
@@ -149,8 +149,8 @@ def _seed_records(args, resolution: tuple[int, int]) -> list[dict]:
         records = {r["seed"]: r for path in args.from_seeds for r in map(json.loads, path.read_text().splitlines())}
         missing = sorted(set(range(args.seeds)) - set(records))
         if missing:
-            raise SystemExit(f"--from-seeds: no record for seeds {missing}")
-        return [records[k] for k in range(args.seeds)]
+            print(f"--from-seeds: no record for seeds {missing}: the rows are over the {len(records)} seeds flown", flush=True)
+        return [records[k] for k in sorted(records)]
     first, last = (int(v) for v in args.seed_range.split(":")) if args.seed_range else (0, args.seeds)
     records = []
     started = time.perf_counter()

@@ -3,6 +3,7 @@ room): exploration, hover with and without drift correction, corner-to-corner na
 landing, edge recovery, flight level, and the autopilot's time per 640x480 frame.
 
 Usage: python bench/marker_autopilot.py [--seeds 20] [--edge-runs 50] [--resolution 320x240]
+(--help: flying the seeds in parallel processes, --parts)
 
 Per seed: an exploration mission (markers mapped within 120 s; its map is the prior map of the
 corner-to-corner flight), a 120 s hover with drift correction and one without (time until the
@@ -20,9 +21,11 @@ from __future__ import annotations
 
 import argparse
 import copy
+import json
 import os
 import platform
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -78,14 +81,48 @@ def _edge_run(seed: int, resolution: tuple[int, int]) -> bool:
     return bool(back and not gave_up and not result.left_room)
 
 
+def fly_seed(seed: int, resolution: tuple[int, int]) -> dict:
+    """One seed's five missions, as one record (the table is over these)."""
+    centres = marker_world_centres()
+    explored = fly(MissionSpec(seed=seed, duration_s=120.0, resolution=resolution))
+    band = [explored.summary()["flight_level_in_band_fraction"]]
+    prior = copy.deepcopy(explored.autopilot.marker_map)
+    trip = fly(MissionSpec(seed=seed, target=98, start_marker=0, duration_s=40.0, resolution=resolution, prior_map=prior))
+    flying = np.flatnonzero(np.array(trip.states) != State.LIFT_OFF.value)
+    near = np.flatnonzero(np.linalg.norm(trip.true_positions[:, :2] - centres[98], axis=1) <= 0.1)
+    target = int(np.random.default_rng(seed).integers(0, len(centres)))
+    landed = fly(MissionSpec(seed=seed, target=target, duration_s=120.0, resolution=resolution))
+    summary = landed.summary()
+    held = fly(MissionSpec(seed=seed, hover_s=120.0, duration_s=130.0, resolution=resolution))
+    loose = fly(MissionSpec(seed=seed, hover_s=60.0, duration_s=40.0, resolution=resolution), AutopilotSettings(drift_correction=False))
+    band += [r.summary()["flight_level_in_band_fraction"] for r in (trip, landed, held)]
+    return {
+        "seed": seed,
+        "mapped": float(explored.mapped[np.searchsorted(explored.times, 120.0, side="right") - 1] / len(centres)),
+        "corner_s": float(trip.times[near[0]] - trip.times[flying[0]]) if len(near) and len(flying) else None,
+        "landing_m": summary["landing_error_m"] if summary["landed"] and summary["landing_error_m"] is not None else None,
+        "hover_held": bool(_time_off_map(held) >= 120.0 and not held.left_room),
+        "uncorrected_off_s": _time_off_map(loose),
+        "band": band,
+    }
+
+
 def main() -> None:
-    parser = argparse.ArgumentParser()
+    parser = argparse.ArgumentParser(
+        epilog="The 20 seeds take hours on a loaded machine: fly them in parallel processes (--seed-range 0:10 --save-seeds A.jsonl, "
+        "--seed-range 10:20 --save-seeds B.jsonl, --parts edge,speed), then write the table with --parts missions --from-seeds A.jsonl B.jsonl."
+    )
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--edge-runs", type=int, default=50)
     parser.add_argument("--resolution", default="320x240")
+    parser.add_argument("--parts", default="missions,edge,speed", help="which rows: missions, edge, speed (comma-separated)")
+    parser.add_argument("--seed-range", default=None, help="A:B: fly seeds A..B-1 only (default: all --seeds)")
+    parser.add_argument("--save-seeds", type=Path, default=None, help="append each seed's record here (JSON lines)")
+    parser.add_argument("--from-seeds", type=Path, nargs="*", default=None, help="records saved by --save-seeds: no flying, the mission rows from them")
     args = parser.parse_args()
     cv2.setNumThreads(1)
     resolution = tuple(int(v) for v in args.resolution.split("x"))
+    parts = set(args.parts.split(","))
     command = f"python bench/marker_autopilot.py --seeds {args.seeds} --edge-runs {args.edge_runs} --resolution {args.resolution}"
     print(f"command: {command}  ({platform.node()}, {os.cpu_count()} cores)\n")
     results = Results("marker_autopilot", command)
@@ -93,36 +130,54 @@ def main() -> None:
         "targets", COLUMNS, key=["target"], caption=f"{args.seeds} seeded missions per row (edge: {args.edge_runs} runs), {args.resolution} renders"
     )
     print(table.header())
-    centres = marker_world_centres()
-    mapped, corner, landing, hover_ok, drift_off, band = [], [], [], [], [], []
+    if "missions" in parts:
+        records = _seed_records(args, resolution)
+        if args.save_seeds is None or args.from_seeds is not None:
+            _mission_rows(table, records)
+        if args.from_seeds is not None:
+            flown = [r["seed"] for r in records]
+            table.data["caption"] = f"{len(flown)} seeded missions per row (edge: {args.edge_runs} runs), {args.resolution} renders"
+            results.note(f"mission rows over seeds {flown}, flown in parallel processes (--seed-range, --save-seeds) and aggregated with --from-seeds")
+    if "edge" in parts:
+        _edge_row(table, args.edge_runs, resolution)
+    if "speed" in parts:
+        _speed_row(table)
+
+
+def _seed_records(args, resolution: tuple[int, int]) -> list[dict]:
+    if args.from_seeds is not None:
+        records = {r["seed"]: r for path in args.from_seeds for r in map(json.loads, path.read_text().splitlines())}
+        missing = sorted(set(range(args.seeds)) - set(records))
+        if missing:
+            print(f"--from-seeds: no record for seeds {missing}: the rows are over the {len(records)} seeds flown", flush=True)
+        return [records[k] for k in sorted(records)]
+    first, last = (int(v) for v in args.seed_range.split(":")) if args.seed_range else (0, args.seeds)
+    records = []
     started = time.perf_counter()
-    for seed in range(args.seeds):
-        explored = fly(MissionSpec(seed=seed, duration_s=120.0, resolution=resolution))
-        mapped.append(explored.mapped[np.searchsorted(explored.times, 120.0, side="right") - 1] / len(centres))
-        band.append(explored.summary()["flight_level_in_band_fraction"])
-        prior = copy.deepcopy(explored.autopilot.marker_map)
-        trip = fly(MissionSpec(seed=seed, target=98, start_marker=0, duration_s=40.0, resolution=resolution, prior_map=prior))
-        flying = np.flatnonzero(np.array(trip.states) != State.LIFT_OFF.value)
-        near = np.flatnonzero(np.linalg.norm(trip.true_positions[:, :2] - centres[98], axis=1) <= 0.1)
-        corner.append(float(trip.times[near[0]] - trip.times[flying[0]]) if len(near) and len(flying) else np.inf)
-        target = int(np.random.default_rng(seed).integers(0, len(centres)))
-        landed = fly(MissionSpec(seed=seed, target=target, duration_s=120.0, resolution=resolution))
-        summary = landed.summary()
-        landing.append(summary["landing_error_m"] if summary["landed"] and summary["landing_error_m"] is not None else np.inf)
-        for result in (trip, landed):
-            band.append(result.summary()["flight_level_in_band_fraction"])
-        held = fly(MissionSpec(seed=seed, hover_s=120.0, duration_s=130.0, resolution=resolution))
-        hover_ok.append(_time_off_map(held) >= 120.0 and not held.left_room)
-        band.append(held.summary()["flight_level_in_band_fraction"])
-        uncorrected = AutopilotSettings(drift_correction=False)
-        loose = fly(MissionSpec(seed=seed, hover_s=60.0, duration_s=40.0, resolution=resolution), uncorrected)
-        drift_off.append(_time_off_map(loose))
+    for seed in range(first, last):
+        record = fly_seed(seed, resolution)
+        records.append(record)
+        if args.save_seeds is not None:
+            with args.save_seeds.open("a") as handle:
+                handle.write(json.dumps(record) + "\n")
+        corner, landing = record["corner_s"], record["landing_m"]
         print(
-            f"  seed {seed}: mapped {mapped[-1]:.0%}, corner {corner[-1]:.1f} s, landing {landing[-1] * 1000:.0f} mm, hover held {hover_ok[-1]}, "
-            f"uncorrected off the map after {drift_off[-1]:.1f} s ({time.perf_counter() - started:.0f} s)",
+            f"  seed {seed}: mapped {record['mapped']:.0%}, corner {corner if corner is not None else float('inf'):.1f} s, "
+            f"landing {landing * 1000 if landing is not None else float('inf'):.0f} mm, hover held {record['hover_held']}, "
+            f"uncorrected off the map after {record['uncorrected_off_s']:.1f} s ({time.perf_counter() - started:.0f} s)",
             flush=True,
         )
-    n = args.seeds
+    return records
+
+
+def _mission_rows(table, records: list[dict]) -> None:
+    n = len(records)
+    mapped = [r["mapped"] for r in records]
+    hover_ok = [r["hover_held"] for r in records]
+    drift_off = [r["uncorrected_off_s"] for r in records]
+    corner = [r["corner_s"] if r["corner_s"] is not None else np.inf for r in records]
+    landing = [r["landing_m"] if r["landing_m"] is not None else np.inf for r in records]
+    band = [b for r in records for b in r["band"]]
     print(
         table.add(
             {
@@ -191,7 +246,10 @@ def main() -> None:
             }
         )
     )
-    recovered = [_edge_run(k, resolution) for k in range(args.edge_runs)]
+
+
+def _edge_row(table, runs: int, resolution: tuple[int, int]) -> None:
+    recovered = [_edge_run(k, resolution) for k in range(runs)]
     print(
         table.add(
             {
@@ -203,6 +261,10 @@ def main() -> None:
             }
         )
     )
+
+
+def _speed_row(table) -> None:
+    """At 640x480 whatever the missions render at: the target is per 640x480 frame."""
     speed = fly(MissionSpec(seed=0, duration_s=30.0, resolution=(640, 480)), clock=time.thread_time)
     wall = fly(MissionSpec(seed=0, duration_s=30.0, resolution=(640, 480)), clock=time.perf_counter)
     p95 = float(np.percentile(speed.frame_ms, 95))

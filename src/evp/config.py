@@ -247,6 +247,14 @@ class NavigationSettings(_Section):
     non_holonomic_sigma_m_s: float = Field(0.1, gt=0, description="lateral and vertical body speed of a ground vehicle (non-holonomic constraint)")
     yaw_rate_sigma_rad_s: float = Field(0.01, gt=0)
     beacon_range_sigma_m: float = Field(0.1, gt=0)
+    marker_position_sigma_m: float = Field(
+        0.02,
+        gt=0,
+        description="camera position from one marker (1 sigma): the marker's tilt error (marker_attitude_sigma_rad) swings the camera by ~2 cm at seed 003's 0.45 m flight level",
+    )
+    marker_attitude_sigma_rad: float = Field(
+        0.05, gt=0, description="camera attitude from one marker (1 sigma): a small square's tilt is ambiguous by a few degrees (IPPE's two solutions)"
+    )
     enabled: bool = Field(
         True, description="evp run: fuse the IMU (and barometer, range finder) with SLAM when the dataset has an IMU and its camera extrinsic"
     )
@@ -367,6 +375,11 @@ class MarkerSettings(_Section):
     duplicate_tolerance_m: float = Field(
         0.15, gt=0, description="a marker observed this far from where the map has it is a duplicate id (two markers, one id): rejected and logged"
     )
+    lone_marker_tolerance_m: float = Field(
+        0.3,
+        gt=0,
+        description="the only mapped marker in view putting the camera this far from where its motion has it is a duplicate id: rejected and logged; wider than duplicate_tolerance_m as a lone marker at the image edge jitters by +-6 cm and the velocity from it more (seed 0's exploration: 0.16 m on a genuine one)",
+    )
     refine_every_markers: int = Field(
         10, ge=1, description="the metric map is refined by its pose graph after this many new markers (a refinement costs ~10-50 ms: not every frame)"
     )
@@ -427,6 +440,13 @@ class AutopilotSettings(_Section):
     land_after_s: float = Field(3.0, gt=0, description="frames missing this long: land where it is")
     range_timeout_s: float = Field(0.3, gt=0, description="no valid range reading for this long: hold height from the marker poses' height, logged")
     hover_time_s: float = Field(0.0, ge=0, description="hover mission: hold over the map's centre this long, then land (0: explore)")
+    vehicles: list[str] = Field(
+        default_factory=list,
+        description="evp serve: the mobile stations (their hello.device) that fly marker missions: their frames and range telemetry drive this autopilot, its velocity set-points go to their MAVLink endpoint (mavlink.vehicles, else --mavlink)",
+    )
+    watchdog_period_s: float = Field(
+        0.1, gt=0, description="evp serve: how often the watchdog looks for stopped frames (well under frame_timeout_s, so a hold starts within 0.6 s)"
+    )
 
 
 class StationSettings(_Section):

@@ -50,6 +50,16 @@ def test_frames_stopping_hold_then_land():
     assert [e.detail for e in pilot.events if e.kind == "frames_stopped"][-1].endswith("landing")
 
 
+def test_a_lone_copy_of_a_mapped_marker_does_not_teleport_the_vehicle():
+    pilot = Autopilot(AutopilotSettings(), MarkerSettings())
+    t = _airborne(pilot)
+    before = pilot.position[:2].copy()
+    copy = {6: np.array([0.5, 0.5])}  # mapped marker 6 again, 0.43 m from the real one, nothing else in view
+    pilot.step(t + 1 / 30, observe(np.array([0.4, 0.4]), 0.45, copy, reach=0.15), 0.45)
+    assert np.linalg.norm(pilot.position[:2] - before) < 0.05
+    assert any(e.kind == "duplicate_id" for e in pilot.marker_map.events)
+
+
 def test_a_range_dropout_falls_back_to_the_markers_height():
     pilot = Autopilot(AutopilotSettings(), MarkerSettings())
     t = _airborne(pilot)

@@ -57,6 +57,8 @@ def test_a_marker_seen_in_one_frame_only_is_not_mapped():
     flicker = observe(np.array([0.0, 0.0]), 0.45, {**markers, 50: np.array([0.25, 0.1])})
     marker_map.update(1.0, flicker)
     assert 50 not in marker_map.poses
+    marker_map.update(1.1, observe(np.array([0.0, 0.0]), 0.45, markers))  # gone again: told why it is not in the map
+    assert any(e.kind == "unconfirmed_marker" and "marker 50" in e.detail for e in marker_map.events)
 
 
 def test_a_marker_id_seen_in_two_places_is_rejected_and_logged():
@@ -107,3 +109,13 @@ def test_the_pose_graph_jacobian_is_the_residuals_derivative():
     numeric = np.array([approx_fprime(poses[1:].ravel(), lambda x, k=k: residuals(x)[k], 1e-7) for k in range(18)])
     analytic = relative_jacobian(poses, pairs, weights, np.array([-1, 0, 1, 2, 3])).toarray()
     np.testing.assert_allclose(analytic, numeric, atol=1e-5)
+
+
+def test_a_lone_mapped_marker_far_from_where_the_motion_puts_the_camera_is_rejected_and_logged():
+    markers = grid_positions(3, 3)
+    marker_map = _flown(markers, [(0.2, 0.2)] * 3)
+    copy = {4: markers[4]}  # a second marker 4, seen alone with the camera 0.35 m from it
+    camera = markers[4] + np.array([0.0, 0.0]) - markers[marker_map.root]
+    assert marker_map.update(1.0, observe(markers[4], 0.45, copy), expected_xy=camera + np.array([0.35, 0.0])) is None
+    assert any(e.kind == "duplicate_id" and "only mapped one" in e.detail for e in marker_map.events)
+    assert marker_map.update(1.1, observe(markers[4], 0.45, copy), expected_xy=camera + np.array([0.02, 0.0])) is not None

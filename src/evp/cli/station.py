@@ -68,7 +68,23 @@ def pairing_code(
 
 
 def run_stream(
-    source_spec, url, realtime, encoding, jpeg_quality, camera, max_frames, credential, resume, cafile, fingerprint, insecure, out, quiet, echo, robot=None
+    source_spec,
+    url,
+    realtime,
+    encoding,
+    jpeg_quality,
+    camera,
+    max_frames,
+    credential,
+    resume,
+    cafile,
+    fingerprint,
+    insecure,
+    out,
+    quiet,
+    echo,
+    device="evp-stream",
+    robot=None,
 ) -> dict:
     """Stream a source to a station; the poses received are echoed (unless quiet) and written to
     ``out`` (poses.tum: the tracked ones; answers.jsonl: every answer with its fields and its
@@ -92,7 +108,9 @@ def run_stream(
             t = " ".join(f"{v:.4f}" for v in pose.t)
             echo(f"pose {pose.seq} t={pose.timestamp:.3f} {pose.state} xyz=({t}) quality={pose.quality}")
 
-    client = StreamClient(url, token=credential, cafile=cafile, fingerprint=fingerprint, insecure=insecure, on_pose=show, log=lambda text: echo(text, err=True))
+    client = StreamClient(
+        url, token=credential, device=device, cafile=cafile, fingerprint=fingerprint, insecure=insecure, on_pose=show, log=lambda text: echo(text, err=True)
+    )
     report = asyncio.run(client.run(source, realtime, encoding, jpeg_quality, resume))
     summary = report.summary()
     if out is not None:
@@ -130,6 +148,9 @@ def stream(
         False, "--encoder-ticks", help="Send the wheel records as a wheel robot's encoder counts (robot section of --config): a robot's simulator."
     ),
     config: Path | None = typer.Option(None, "--config", help="Settings YAML (its robot section, with --encoder-ticks)."),
+    device: str = typer.Option(
+        "evp-stream", "--device", help="This mobile station's name (hello.device): the station's mavlink.vehicles and autopilot.vehicles key on it."
+    ),
 ) -> None:
     """Stream to a base station as a mobile station would; prints each pose, then a JSON summary.
     The station's certificate is verified (--cafile, --fingerprint, or a public one) unless --insecure;
@@ -145,7 +166,23 @@ def stream(
 
         robot = load_settings(config).robot
     summary = run_stream(
-        source, url, realtime, encoding, jpeg_quality, camera, max_frames, credential, resume, cafile, fingerprint, insecure, out, quiet, typer.echo, robot
+        source,
+        url,
+        realtime,
+        encoding,
+        jpeg_quality,
+        camera,
+        max_frames,
+        credential,
+        resume,
+        cafile,
+        fingerprint,
+        insecure,
+        out,
+        quiet,
+        typer.echo,
+        device,
+        robot,
     )
     typer.echo(json.dumps(summary))
     if summary["poses_received"] and not summary["poses_tracked"]:

@@ -234,4 +234,40 @@ class BeaconDistance:
         return Linearisation(residual, H, np.array([[_sigma(self.sigma_m, s.beacon_range_sigma_m) ** 2]]))
 
 
-Measurement = VisualPose | BaroAltitude | RangeHeight | GpsPosition | WheelSpeed | YawRate | BeaconDistance
+@dataclass(frozen=True)
+class MarkerPose:
+    """The camera's pose from one marker whose world pose is known: an absolute, metric fix of
+    position and attitude (heading included), with neither the visual map's scale nor its gauge.
+    ``T_world_marker`` is the marker in the world (a surveyed marker, or one of a marker map whose
+    frame is the world's: evp.markers.marker_map's x, y, theta on a floor at z = 0, z up);
+    ``R_cam_marker``, ``t_cam_marker`` the pose solved from its corners
+    (:class:`evp.markers.detection.MarkerObservation`); ``T_body_cam`` the camera-IMU extrinsic.
+    A second marker with a mapped id is an innovation far outside the gate: refused there."""
+
+    timestamp: float
+    T_world_marker: np.ndarray
+    R_cam_marker: np.ndarray
+    t_cam_marker: np.ndarray
+    T_body_cam: np.ndarray
+    position_sigma_m: float = float("nan")
+    attitude_sigma_rad: float = float("nan")
+    kind = "marker"
+
+    def linearise(self, x: NavState, gyro: np.ndarray, s: NavigationSettings) -> Linearisation | Refusal:
+        if not _finite(self.T_world_marker, self.R_cam_marker, self.t_cam_marker):
+            return Refusal("marker pose is not finite")
+        R_wm, t_wm = self.T_world_marker[:3, :3], self.T_world_marker[:3, 3]
+        R_world_cam = R_wm @ self.R_cam_marker.T
+        t_world_cam = t_wm - R_world_cam @ self.t_cam_marker
+        R_bc, t_bc = self.T_body_cam[:3, :3], self.T_body_cam[:3, 3]
+        H = np.zeros((6, ERROR_DIM))
+        H[0:3, POSITION] = np.eye(3)
+        H[0:3, ATTITUDE] = -x.R_world_body @ skew3(t_bc)
+        H[3:6, ATTITUDE] = R_bc.T
+        predicted_rotation = x.R_world_body @ R_bc
+        residual = np.concatenate([t_world_cam - (x.position + x.R_world_body @ t_bc), so3_log(predicted_rotation.T @ R_world_cam)])
+        sigmas = (_sigma(self.position_sigma_m, s.marker_position_sigma_m), _sigma(self.attitude_sigma_rad, s.marker_attitude_sigma_rad))
+        return Linearisation(residual, H, np.diag(np.repeat(np.square(sigmas), 3)))
+
+
+Measurement = VisualPose | BaroAltitude | RangeHeight | GpsPosition | WheelSpeed | YawRate | BeaconDistance | MarkerPose

@@ -80,8 +80,12 @@ class MarkerMap:
     def log(self, time_s: float, kind: str, detail: str) -> None:
         self.events.append(MapEvent(time_s, kind, detail))
 
-    def update(self, time_s: float, observations: list[MarkerObservation]) -> Localisation | None:
-        """Map one frame's markers and localise the camera from the mapped ones (None if none)."""
+    def update(self, time_s: float, observations: list[MarkerObservation], expected_xy: np.ndarray | None = None) -> Localisation | None:
+        """Map one frame's markers and localise the camera from the mapped ones (None if none).
+        ``expected_xy`` is where the camera's own motion puts it (the autopilot's prediction from
+        the last frame): a single mapped marker that puts the camera farther than
+        ``lone_marker_tolerance_m`` from there has no other marker to outvote it, and is a second
+        marker with its id (or a misread) as surely as one the others disagree with."""
         observations = self._without_repeated_ids(time_s, observations)
         if self.root is None and observations:
             nearest = min(observations, key=lambda o: o.distance_m)
@@ -91,10 +95,12 @@ class MarkerMap:
             self.log(time_s, "map_started", f"marker {self.root} is the map's origin")
         over = {o.marker_id: camera_over_marker(o) for o in observations}
         known = self._without_duplicates(time_s, [i for i in over if i in self.poses], over)
+        if expected_xy is not None and len(known) == 1:
+            known = self._near_expected(time_s, known[0], compose(self.poses[known[0]], over[known[0]])[:2], expected_xy)
         usable = [o for o in observations if o.marker_id not in self._rejected]
         solved = camera_over_floor([o for o in usable if o.marker_id in known], self.poses, self.settings.marker_size_m)
         if solved is None:
-            self._candidates = {}
+            self._forget_candidates(time_s, set())
             return None
         R_cam_floor, t_cam_floor = solved
         placed = {o.marker_id: marker_pose_from_corners(floor_points(R_cam_floor, t_cam_floor, o.rays)) for o in usable}
@@ -135,9 +141,26 @@ class MarkerMap:
             self.log(time_s, "duplicate_id", f"marker {i} seen {np.linalg.norm(cameras[i] - centre):.2f} m from its mapped place: not used")
         return keep
 
-    def _add_new(self, time_s: float, new: list[int], placed: dict[int, np.ndarray]) -> None:
-        seen_now = set(new)
+    def _near_expected(self, time_s: float, marker_id: int, camera_xy: np.ndarray, expected_xy: np.ndarray) -> list[int]:
+        jump = float(np.linalg.norm(camera_xy - expected_xy))
+        if jump <= self.settings.lone_marker_tolerance_m:
+            return [marker_id]
+        self._rejected.add(marker_id)
+        self.log(
+            time_s, "duplicate_id", f"marker {marker_id}, the only mapped one in view, puts the camera {jump:.2f} m from where its motion has it: not used"
+        )
+        return []
+
+    def _forget_candidates(self, time_s: float, seen_now: set[int]) -> None:
+        """New markers not seen again in the next frame are not mapped (a marker at the image's
+        edge for one frame, a misread id): logged, so the operator knows why a marker is missing."""
+        for i, frames in self._candidates.items():
+            if i not in seen_now:
+                self.log(time_s, "unconfirmed_marker", f"marker {i} seen in {frames} frame(s) in a row, fewer than {self.min_frames}: not mapped")
         self._candidates = {i: n for i, n in self._candidates.items() if i in seen_now}
+
+    def _add_new(self, time_s: float, new: list[int], placed: dict[int, np.ndarray]) -> None:
+        self._forget_candidates(time_s, set(new))
         for i in new:
             self._candidates[i] = self._candidates.get(i, 0) + 1
             if self._candidates[i] < self.min_frames:

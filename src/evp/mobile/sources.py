@@ -17,7 +17,7 @@ import numpy as np
 from evp.config import RobotSettings
 from evp.errors import CalibrationError, DataError, DatasetError
 from evp.io.dataset import TelemetryRecord
-from evp.types import BaroSample, CameraModel, EncoderCounts, Frame, GpsFix, ImuSample, WheelOdometry, WifiScan
+from evp.types import BaroSample, CameraModel, EncoderCounts, Frame, GpsFix, ImuSample, RangeSample, WheelOdometry, WifiScan
 
 
 @dataclass
@@ -125,7 +125,7 @@ def telemetry_message(record: TelemetryRecord):
     """The protocol message for a telemetry record, or None for kinds the protocol does not carry."""
     import math
 
-    from evp.station.protocol import BaroTelemetry, EncoderTelemetry, GpsTelemetry, ImuTelemetry, WheelTelemetry, WifiTelemetry
+    from evp.station.protocol import BaroTelemetry, EncoderTelemetry, GpsTelemetry, ImuTelemetry, RangeTelemetry, WheelTelemetry, WifiTelemetry
 
     def optional(value: float) -> float | None:
         return value if math.isfinite(value) else None
@@ -148,4 +148,6 @@ def telemetry_message(record: TelemetryRecord):
         return EncoderTelemetry(timestamp=record.timestamp, counts=list(record.counts), yaw_rate_rad_s=optional(record.yaw_rate_rad_s))
     if isinstance(record, WifiScan):
         return WifiTelemetry(timestamp=record.timestamp, rssi_dbm=dict(record.rssi_dbm))
+    if isinstance(record, RangeSample):  # out of range (NaN) is no reading: nothing to send
+        return RangeTelemetry(timestamp=record.timestamp, distance_m=record.distance_m) if record.distance_m > 0 else None
     return None

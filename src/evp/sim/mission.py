@@ -173,25 +173,33 @@ class MissionRun:
         self.done = False
         self.t = 0.0
 
+    def sense(self) -> tuple[np.ndarray | None, float]:
+        """The camera's image (None in a scripted frame gap) and the sonar's reading (NaN: out of
+        range or a scripted gap) from the vehicle's true pose now."""
+        spec, t, s = self.spec, self.t, self.vehicle.state
+        R = s.rotation()
+        distance = ray_distance(self.scene, s.position, R @ np.array([0.0, 0.0, -1.0]))
+        reading = distance + self.rng.normal(0, spec.range.noise_m) if distance <= spec.range.max_range_m and not _in(spec.range_gaps, t) else float("nan")
+        if _in(spec.frame_gaps, t):
+            return None, reading
+        T = np.eye(4)
+        T[:3, :3] = R @ DOWNWARD
+        T[:3, 3] = s.position
+        image = self.renderer.render(T).astype(np.float32)
+        cv2.randn(self._noise, 0.0, IMAGE_NOISE_SIGMA)
+        return np.clip(image + self._noise, 0, 255).astype(np.uint8), reading
+
     def step(self) -> bool:
         """One frame: sense, decide, move. False once the mission is over."""
         if self.done or self.t > self.spec.duration_s:
             self.done = True
             return False
-        spec, pilot, t, r = self.spec, self.pilot, self.t, self.records
+        pilot, t, r = self.pilot, self.t, self.records
         while self.commands and self.commands[0][0] <= t:
             pilot.command(t, self.commands.pop(0)[1])
         s = self.vehicle.state
-        R = s.rotation()
-        distance = ray_distance(self.scene, s.position, R @ np.array([0.0, 0.0, -1.0]))
-        reading = distance + self.rng.normal(0, spec.range.noise_m) if distance <= spec.range.max_range_m and not _in(spec.range_gaps, t) else float("nan")
-        if not _in(spec.frame_gaps, t):
-            T = np.eye(4)
-            T[:3, :3] = R @ DOWNWARD
-            T[:3, 3] = s.position
-            image = self.renderer.render(T).astype(np.float32)
-            cv2.randn(self._noise, 0.0, IMAGE_NOISE_SIGMA)
-            frame = np.clip(image + self._noise, 0, 255).astype(np.uint8)
+        frame, reading = self.sense()
+        if frame is not None:
             began = self.clock()
             command = pilot.step(t, self.detector.detect(frame), reading)
             r["frame_ms"].append((self.clock() - began) * 1000.0)

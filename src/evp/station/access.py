@@ -22,7 +22,7 @@ from starlette.responses import JSONResponse
 from evp.station.auth import DEV, Identity
 
 OPERATOR_COOKIE = "evp_operator"
-PUBLIC_PATHS = ("/", "/phone", "/api/pair", "/ws/mobile", "/favicon.ico")
+PUBLIC_PATHS = ("/", "/phone", "/mission", "/api/pair", "/ws/mobile", "/favicon.ico")
 PUBLIC_PREFIXES = ("/static/",)
 
 

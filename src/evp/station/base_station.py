@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import os
 import time
 from collections.abc import Callable
@@ -25,8 +26,11 @@ from evp.station.storage import StorageGuard
 from evp.station.store import SessionStore
 
 if TYPE_CHECKING:
+    from evp.station.marker_mission import MarkerMission
     from evp.station.mavlink_routes import MavlinkRoutes
 from evp.types import CameraModel
+
+log = logging.getLogger(__name__)
 
 
 def default_camera(settings: Settings) -> CameraModel:
@@ -60,6 +64,7 @@ class Station:
         self._frames_counted: dict[str, int] = {}  # frames received per session at the last tick
         self._status_task: asyncio.Task | None = None
         self._drive_task: asyncio.Task | None = None
+        self._watchdog_task: asyncio.Task | None = None
 
     # --- lifecycle ------------------------------------------------------------------------------
 
@@ -89,10 +94,12 @@ class Station:
             self.mavlink = MavlinkRoutes(self.mavlink_url, self.settings.mavlink, problem)
         self._status_task = asyncio.get_running_loop().create_task(self._status_loop())
         self._drive_task = asyncio.get_running_loop().create_task(self._drive_loop())
+        if self.settings.autopilot.vehicles:
+            self._watchdog_task = asyncio.get_running_loop().create_task(self._watchdog_loop())
         self.store.log_event(None, "info", "started", f"station {__version__} started, data in {self.data_dir}")
 
     async def stop(self) -> None:
-        for task in (self._status_task, self._drive_task):
+        for task in (self._status_task, self._drive_task, self._watchdog_task):
             if task is not None:
                 task.cancel()
         for session in list(self.sessions.values()):
@@ -278,6 +285,32 @@ class Station:
             {"type": "gps", "session_id": session.id, "fix": {"timestamp": fix.timestamp, "latitude_deg": fix.latitude_deg, "longitude_deg": fix.longitude_deg}}
         )
 
+    def marker_mission(self, session: LiveSession) -> MarkerMission | None:
+        """The marker autopilot for a vehicle in ``autopilot.vehicles`` (on its first camera), its
+        set-points on that vehicle's MAVLink route; None for every other session."""
+        if session.device not in self.settings.autopilot.vehicles:
+            return None
+        from evp.station.marker_mission import MarkerMission
+
+        routes = self.mavlink
+        connect = (lambda: routes.output(session.id, session.device)) if routes is not None else (lambda: None)
+        mission = MarkerMission(session.camera, self.settings, session.event, connect)
+        endpoint = "its MAVLink route" if routes is not None else "no MAVLink endpoint (give --mavlink or mavlink.vehicles): nothing is sent"
+        session.event("info", "marker_mission", f"{session.device} flies the marker mission (autopilot.vehicles); set-points to {endpoint}")
+        return mission
+
+    async def _watchdog_loop(self) -> None:
+        """The marker missions' watchdog: a hold when a vehicle's frames stop (evp.station.marker_mission)."""
+        while True:
+            await asyncio.sleep(self.settings.autopilot.watchdog_period_s)
+            for session in list(self.sessions.values()):
+                if session.mission is None:
+                    continue
+                try:
+                    session.mission.tick()
+                except Exception:  # a bug: logged, the other vehicles' watchdogs go on
+                    log.exception("session %s: marker mission watchdog failed", session.id)
+
     def on_navigation(self, session: LiveSession, state: dict) -> None:
         self.broadcast({"type": "navigation", "session_id": session.id, "navigation": state})
 
@@ -287,7 +320,15 @@ class Station:
             self.mavlink.alarm(session.id, session.device or session.id, event["code"], event["text"])
 
     def on_status(self, session: LiveSession) -> None:
-        self.broadcast({"type": "status", "session_id": session.id, "status": session.status().model_dump(), "connected": session.connected})
+        self.broadcast(
+            {
+                "type": "status",
+                "session_id": session.id,
+                "status": session.status().model_dump(),
+                "connected": session.connected,
+                "mission": session.mission is not None,
+            }
+        )
 
     def on_new_map(self, session: LiveSession) -> None:
         """A new estimator for a session: its poses start a new frame (MAVLink reset_counter)."""
@@ -310,7 +351,10 @@ class Station:
             "db": self.store.engine.url.render_as_string(hide_password=True),
             "mavlink": self.mavlink_url,
             "storage": self.storage_problem(),
-            "live": {sid: {"status": s.status().model_dump(), "connected": s.connected, "device": s.device} for sid, s in self.sessions.items()},
+            "live": {
+                sid: {"status": s.status().model_dump(), "connected": s.connected, "device": s.device, "mission": s.mission is not None}
+                for sid, s in self.sessions.items()
+            },
             "background": {"url": "/api/background", "bounds_deg": list(bounds)} if (bounds := self.settings.station.background_bounds_deg) else None,
         }
 

@@ -10,10 +10,15 @@ switch), the pilot wins at once: no further set-point is sent until the mode is 
 that is logged. ``tick`` is the watchdog, called by the runtime between frames: when frames stop
 it steps the autopilot without a frame, which holds (zero velocity) and lands after
 ``land_after_s``. No thread and no clock of its own: the caller drives it and injects the clock.
+Without a connection (a vehicle with no MAVLink endpoint yet) the autopilot still runs, so the
+operator sees the map and the state, and nothing is sent. The set-points go to the system that
+sends the controller's heartbeats; ``lock`` serialises sends on a connection another thread also
+writes (the station's ODOMETRY output shares the vehicle's link).
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from collections.abc import Callable
@@ -31,10 +36,19 @@ HEARTBEAT_PERIOD_S = 1.0
 
 
 class MavlinkAutopilotLink:
-    """One autopilot, one flight controller. ``connection`` is a pymavlink connection."""
+    """One autopilot, one flight controller. ``connection`` is a pymavlink connection (or None)."""
 
-    def __init__(self, connection, autopilot: Autopilot, clock: Callable[[], float] = time.monotonic, target_system: int = 1, target_component: int = 1):
+    def __init__(
+        self,
+        connection,
+        autopilot: Autopilot,
+        clock: Callable[[], float] = time.monotonic,
+        target_system: int = 1,
+        target_component: int = 1,
+        lock: contextlib.AbstractContextManager | None = None,
+    ):
         self.connection = connection
+        self.lock = lock or contextlib.nullcontext()
         self.autopilot = autopilot
         self.clock = clock
         self.target = (target_system, target_component)
@@ -53,12 +67,15 @@ class MavlinkAutopilotLink:
         """Read every pending message; a HEARTBEAT from the controller updates arming and mode."""
         from pymavlink.dialects.v20 import common as mavlink
 
+        if self.connection is None:
+            return
         while (message := self.connection.recv_match(blocking=False)) is not None:
             if message.get_type() != "HEARTBEAT" or message.type in (mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER):
                 continue
             self._on_heartbeat(message, mavlink)
 
     def _on_heartbeat(self, message, mavlink) -> None:
+        self.target = (message.get_srcSystem(), message.get_srcComponent())
         self.armed = bool(message.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
         if message.autopilot == mavlink.MAV_AUTOPILOT_PX4:
             guided = (message.custom_mode >> 16) & 0xFF == PX4_OFFBOARD
@@ -88,10 +105,11 @@ class MavlinkAutopilotLink:
         the autopilot's ``frame_timeout_s``, a step without a frame (hold, later land)."""
         now = self.clock()
         self.poll()
-        if now >= self._next_heartbeat:
+        if now >= self._next_heartbeat and self.connection is not None:
             from pymavlink.dialects.v20 import common as mavlink
 
-            self.connection.mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE)
+            with self.lock:
+                self.connection.mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE)
             self._next_heartbeat = now + HEARTBEAT_PERIOD_S
         if range_m is not None:
             self._range = range_m
@@ -104,7 +122,12 @@ class MavlinkAutopilotLink:
     def _send(self, command: Command) -> None:
         if not self.in_control:
             if not self._refused_logged:
-                self.autopilot.log("no_setpoint", f"not armed in GUIDED/OFFBOARD (armed {self.armed}, mode {self.mode}): set-points withheld")
+                why = (
+                    "no MAVLink endpoint for this vehicle"
+                    if self.connection is None
+                    else f"not armed in GUIDED/OFFBOARD (armed {self.armed}, mode {self.mode})"
+                )
+                self.autopilot.log("no_setpoint", f"{why}: set-points withheld")
                 self._refused_logged = True
             return
         yaw = math.pi / 2 if self.autopilot.position is None else float(self.autopilot.position[2])
@@ -112,8 +135,9 @@ class MavlinkAutopilotLink:
         right = np.array([math.sin(yaw), -math.cos(yaw)])
         velocity = command.velocity_map if command.motors else np.zeros(2)
         climb = command.climb_m_s if command.motors else 0.0
-        self.connection.mav.set_position_target_local_ned_send(
-            int(self.clock() * 1000) & 0xFFFFFFFF, *self.target, 8, VELOCITY_ONLY,  # 8: MAV_FRAME_BODY_NED
-            0.0, 0.0, 0.0, float(velocity @ forward), float(velocity @ right), float(-climb), 0.0, 0.0, 0.0, 0.0, 0.0,
-        )  # fmt: skip
+        with self.lock:
+            self.connection.mav.set_position_target_local_ned_send(
+                int(self.clock() * 1000) & 0xFFFFFFFF, *self.target, 8, VELOCITY_ONLY,  # 8: MAV_FRAME_BODY_NED
+                0.0, 0.0, 0.0, float(velocity @ forward), float(velocity @ right), float(-climb), 0.0, 0.0, 0.0, 0.0, 0.0,
+            )  # fmt: skip
         self.sent += 1

@@ -236,6 +236,7 @@ class MavlinkOutput:
         self._failing = False
         self._state: BodyState | None = None
         self._lock = threading.Lock()
+        self.send_lock = threading.Lock()  # the marker autopilot's set-points share this connection (evp.station.marker_mission)
         self._stop = threading.Event()
         self.sent = 0
         self._last_usec = -1
@@ -258,7 +259,8 @@ class MavlinkOutput:
 
     def _guarded(self, send: Callable[[], None]) -> bool:
         try:
-            send()
+            with self.send_lock:
+                send()
         except OSError as exc:
             if not self._failing:
                 self._failing = True

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import math
 
 from starlette.applications import Starlette
 from starlette.requests import Request
@@ -20,33 +19,15 @@ from starlette.responses import JSONResponse
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
-from evp.autopilot.pilot import KINDS, OperatorCommand
+from evp.autopilot.pilot import KINDS
 from evp.sim.mission import MissionRun
+from evp.station.marker_mission import parse_command, pilot_view
 from evp.station.server import _page, _static_dir
-
-EVENTS_SHOWN = 12
 
 
 def mission_state(run: MissionRun) -> dict:
-    """What the page shows: time, state, height, the camera on the map, the map and its grid."""
-    pilot = run.pilot
-    marker_map = pilot.marker_map
-    grid = marker_map.grid()
-    events = sorted(pilot.events + marker_map.events, key=lambda e: e.time_s)[-EVENTS_SHOWN:]
-    position = None if pilot.position is None else [float(v) for v in pilot.position]
-    height = pilot.height_m if math.isfinite(pilot.height_m) else None
-    return {
-        "t": run.t,
-        "state": pilot.state.value,
-        "done": run.done,
-        "height_m": height,
-        "band_m": [pilot.settings.band_low_m, pilot.settings.band_high_m],
-        "position": position,
-        "target": pilot.landing_target,
-        "markers": [{"id": i, "x": float(p[0]), "y": float(p[1]), "grid": list(grid[i]) if i in grid else None} for i, p in sorted(marker_map.poses.items())],
-        "markers_total": len(run.centres),
-        "events": [{"t": round(e.time_s, 2), "kind": e.kind, "detail": e.detail} for e in events],
-    }
+    """What the page shows (``pilot_view``), with the simulated floor's marker count."""
+    return pilot_view(run.pilot, run.t, run.done, len(run.centres))
 
 
 async def get_state(request: Request) -> JSONResponse:
@@ -56,13 +37,9 @@ async def get_state(request: Request) -> JSONResponse:
 async def post_command(request: Request) -> JSONResponse:
     run: MissionRun = request.app.state.run
     try:
-        body = await request.json()
-        kind = str(body["kind"])
-        marker = None if body.get("marker_id") in (None, "") else int(body["marker_id"])
-        velocity = tuple(float(v) for v in body.get("velocity", (0.0, 0.0)))
-        order = OperatorCommand(kind, marker, velocity[:2], float(body.get("duration_s", 1.0)))
-    except (ValueError, KeyError, TypeError) as exc:
-        return JSONResponse({"error": f"bad command: {exc}; want {{kind: {'|'.join(KINDS)}, marker_id?, velocity?, duration_s?}}"}, status_code=400)
+        order = parse_command(await request.json())
+    except ValueError as exc:
+        return JSONResponse({"error": str(exc)}, status_code=400)
     accepted = run.pilot.command(run.t, order)
     answer = {"accepted": accepted, "detail": run.pilot.events[-1].detail if run.pilot.events else ""}
     return JSONResponse(answer, status_code=200 if accepted else 409)

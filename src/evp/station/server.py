@@ -7,6 +7,8 @@ Routes (who may use them: evp.station.access)
   /api/state            settings + live sessions          POST /api/configure
   /api/sessions         recorded sessions     POST /api/sessions/{id}/{start|stop|resume}
   /api/sessions/{id}/trajectory.tum | recording.mcap | events
+  /mission?session={id} a marker mission's page: GET /api/sessions/{id}/mission (map, grid,
+                        state, flight level), POST /api/sessions/{id}/mission/command
   POST /api/pairing     a new one-time code for a phone, with its QR code
   /api/devices          paired credentials    POST /api/devices/{id}/revoke
   /api/health           database reachable, schema version
@@ -247,6 +249,37 @@ async def _velocity(request: Request, session) -> JSONResponse:
     return JSONResponse({"sent": command.model_dump()})
 
 
+def _mission_of(request: Request):
+    """The live marker mission a request names, or the 404 that says why there is none."""
+    session = request.app.state.station.sessions.get(request.path_params["session_id"])
+    if session is None or session.mission is None:
+        return None, JSONResponse(
+            {"error": "no live marker mission with that session id (autopilot.vehicles names the vehicles that fly one)"}, status_code=404
+        )
+    return session.mission, None
+
+
+async def mission_state(request: Request) -> JSONResponse:
+    mission, refused = _mission_of(request)
+    return refused or JSONResponse(mission.view())
+
+
+async def mission_command(request: Request) -> JSONResponse:
+    """An operator's command to a marker mission: 200 taken, 409 refused by the autopilot (a
+    marker not in the map, a vehicle not flying), 400 not a command; each logged."""
+    from evp.station.marker_mission import parse_command
+
+    mission, refused = _mission_of(request)
+    if refused:
+        return refused
+    try:
+        order = parse_command(await _json_object(request))
+    except ValueError as exc:
+        return JSONResponse({"error": str(exc)}, status_code=400)
+    accepted, detail = mission.command(order)
+    return JSONResponse({"accepted": accepted, "detail": detail}, status_code=200 if accepted else 409)
+
+
 def _no_such_session(session_id: str) -> JSONResponse | None:
     """A 404 for anything that is not a session id: a URL's text never reaches a file name or a header."""
     return None if SESSION_ID.fullmatch(session_id) else JSONResponse({"error": "not a session id"}, status_code=404)
@@ -378,6 +411,7 @@ def create_app(station: Station) -> Starlette:
     routes = [
         Route("/", _page("operator.html")),
         Route("/phone", _page("phone.html")),
+        Route("/mission", _page("mission.html")),
         Route("/api/state", state),
         Route("/api/configure", configure, methods=["POST"]),
         Route("/api/background", background),
@@ -385,6 +419,8 @@ def create_app(station: Station) -> Starlette:
         Route("/api/sessions/{session_id}/trajectory.tum", trajectory),
         Route("/api/sessions/{session_id}/recording.mcap", recording),
         Route("/api/sessions/{session_id}/events", session_events),
+        Route("/api/sessions/{session_id}/mission", mission_state),
+        Route("/api/sessions/{session_id}/mission/command", mission_command, methods=["POST"]),
         Route("/api/sessions/{session_id}/{action}", command, methods=["POST"]),
         Route("/api/pair", pair, methods=["POST"]),
         Route("/api/pairing", new_pairing, methods=["POST"]),

@@ -18,7 +18,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -36,6 +36,7 @@ from evp.station.protocol import (
     Log,
     Pose,
     ProtocolError,
+    RangeTelemetry,
     Status,
     Telemetry,
     Velocity,
@@ -49,6 +50,9 @@ from evp.station.recording import SessionRecording
 from evp.station.robot_link import RobotLink
 from evp.station.store import SessionStore
 from evp.types import CameraModel, EncoderCounts
+
+if TYPE_CHECKING:
+    from evp.station.marker_mission import MarkerMission
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +69,7 @@ class StationHooks(Protocol):
     def on_new_map(self, session: LiveSession) -> None: ...
     def on_navigation(self, session: LiveSession, state: dict) -> None: ...
     def on_gps(self, session: LiveSession, fix: GpsTelemetry) -> None: ...
+    def marker_mission(self, session: LiveSession) -> MarkerMission | None: ...
     def storage_problem(self) -> str | None: ...
 
 
@@ -103,6 +108,7 @@ class LiveSession:
         self.T_body_cam: list[float] | None = None  # the camera in the IMU frame (config), for the navigation stage
         self.answers = "at_once"
         self.navigation: dict | None = None  # the navigation stage's last reported state
+        self.mission: MarkerMission | None = None  # the marker autopilot flying this vehicle (autopilot.vehicles)
         self.estimating = estimating
         self.worker: EstimatorProcess | None = None
         self.send: Callable[[str], None] | None = None
@@ -227,6 +233,8 @@ class LiveSession:
             )
         if isinstance(message, GpsTelemetry) and message.latitude_deg is not None:
             self.station.on_gps(self, message)  # the operator's plot: fused track against GPS
+        if isinstance(message, RangeTelemetry) and self.mission is not None:
+            self.mission.on_range(message.distance_m)
         record = telemetry_record(message)
         if isinstance(record, EncoderCounts):  # every reading, estimator or not: the next difference needs it
             record, warnings = self.robot.wheel_record(record)
@@ -263,6 +271,10 @@ class LiveSession:
         camera = replace(message.camera, name=self.device or "mobile")
         self.recording.camera(camera, now)
         self.camera = camera
+        if self.mission is not None:
+            self.mission.set_camera(camera)
+        else:
+            self.mission = self.station.marker_mission(self)
         self.store.update_session(self.id, camera_json=json.dumps(asdict(camera)))
         self.event("info", "config", f"camera {camera.width}x{camera.height} fx={camera.fx:.1f} fy={camera.fy:.1f} cx={camera.cx:.1f} cy={camera.cy:.1f}")
         self.restart_estimator()
@@ -295,6 +307,8 @@ class LiveSession:
         self.recorded_bytes += len(data)
         self.counters.frames_received += 1
         self._last_seq, self._last_frame_time = message.seq, message.timestamp
+        if self.mission is not None:  # the autopilot flies on every recorded frame, estimated or not
+            self._fly(message)
         if self.camera is None or not self.estimating or self.worker is None:
             self._frame_row(message, now, estimated=False)
             if self.estimator_given_up:
@@ -306,6 +320,15 @@ class LiveSession:
         self._frames[message.seq] = message
         self._send_telemetry()
         self.worker.submit(message)
+
+    def _fly(self, message: ImageMessage) -> None:
+        """The marker autopilot's step; a failure in it (a bug) is the operator's error event, and
+        the frame still gets its answer (the flight controller's own timeout holds the vehicle)."""
+        try:
+            self.mission.on_frame(message)
+        except Exception as exc:
+            log.exception("session %s: marker autopilot failed on frame %d", self.id, message.seq)
+            self.event("error", "autopilot_failed", f"frame {message.seq}: {exc.__class__.__name__}: {exc}")
 
     def _over_quota(self, message: ImageMessage) -> None:
         """Refused, not recorded: the operator hears it once, the phone for every frame."""

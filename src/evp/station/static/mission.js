@@ -1,12 +1,16 @@
-// The live marker mission: polls /api/mission, draws the map and the camera, posts commands.
+// The live marker mission: polls its state, draws the map and the camera, posts commands.
+// On evp serve (/mission?session=ID) the mission is that session's vehicle; on evp fly --serve
+// (/) it is the simulated one.
 "use strict";
 
 const $ = (id) => document.getElementById(id);
+const session = new URLSearchParams(location.search).get("session");
+const api = session ? `/api/sessions/${encodeURIComponent(session)}/mission` : "/api/mission";
 
 async function send(kind, markerId) {
   const body = { kind };
   if (markerId !== undefined) body.marker_id = markerId;
-  const response = await fetch("/api/mission/command", { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body) });
+  const response = await fetch(`${api}/command`, { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body) });
   const answer = await response.json();
   $("command-result").textContent = `${kind}${markerId !== undefined ? " " + markerId : ""}: ${answer.accepted ? "accepted" : "refused"} ${answer.detail || answer.error || ""}`;
 }
@@ -46,17 +50,19 @@ function draw(state) {
 
 async function poll() {
   try {
-    const state = await (await fetch("/api/mission")).json();
+    const response = await fetch(api);
+    if (!response.ok) throw new Error((await response.json()).error);
+    const state = await response.json();
     $("clock").textContent = `t = ${state.t.toFixed(1)} s${state.done ? " (mission over)" : ""}`;
     $("state").textContent = state.state;
     const h = state.height_m;
     $("height").textContent = h === null ? "no reading" : `${(h * 1000).toFixed(0)} mm ${h >= state.band_m[0] && h <= state.band_m[1] ? "(in band)" : "(out of band)"}`;
-    $("mapped").textContent = `${state.markers.length} of ${state.markers_total}`;
+    $("mapped").textContent = state.markers_total === null ? `${state.markers.length}` : `${state.markers.length} of ${state.markers_total}`;
     $("target").textContent = state.target === null ? "none" : state.target;
     $("events").innerHTML = state.events.map((e) => `<div class="event">${e.t.toFixed(2)} ${e.kind}: ${e.detail}</div>`).join("");
     draw(state);
   } catch (error) {
-    $("clock").textContent = "mission server gone";
+    $("clock").textContent = `mission gone: ${error.message}`;
     return;
   }
   setTimeout(poll, 250);

@@ -119,6 +119,9 @@ function updateStatusBar() {
   $("st-latency").textContent = s && streaming && s.latency_ms_p50 ? s.latency_ms_p50.toFixed(0) + " ms" : "–";
   $("st-frames").textContent = s ? `${s.frames_received} received, ${s.frames_estimated} estimated` : "0";
   $("st-dropped").textContent = s ? String(s.frames_dropped) : "0";
+  const mission = $("mission-link");  // a vehicle in autopilot.vehicles: its marker mission's page
+  mission.hidden = !(live && live.mission);
+  if (live && live.mission) mission.href = `/mission?session=${encodeURIComponent(state.selected)}`;
 }
 
 // The recorded sessions' rows follow the live counts between reloads (the table is read from the
@@ -199,7 +202,7 @@ function onMessage(message) {
       break;
     }
     case "status": {
-      const live = state.live[message.session_id] = Object.assign(state.live[message.session_id] || {}, { status: message.status });
+      const live = state.live[message.session_id] = Object.assign(state.live[message.session_id] || {}, { status: message.status, mission: message.mission });
       if (!live.ended) live.connected = message.connected;
       if (!$("session-select").querySelector(`option[value="${message.session_id}"]`)) refreshSelect(); else updateStatusBar();
       if (document.querySelector(`#sessions tbody tr[data-session="${message.session_id}"]`)) updateSessionRow(message.session_id); else loadSessions();

@@ -59,4 +59,5 @@ def test_telemetry_becomes_protocol_messages_and_unknown_values_are_left_out():
     assert isinstance(baro, BaroTelemetry) and baro.pressure_pa == 90_000.0
     assert baro.altitude_m is None
     assert telemetry_message(WifiScan(3.0, {"aa:bb": -60.0})).rssi_dbm == {"aa:bb": -60.0}
-    assert telemetry_message(RangeSample(3.5, 2.0)) is None  # the protocol carries no range finder
+    assert telemetry_message(RangeSample(3.5, 2.0)).distance_m == 2.0  # the marker autopilot's sonar
+    assert telemetry_message(RangeSample(3.6, math.nan)) is None  # out of range: no reading to send

@@ -186,7 +186,10 @@ class LocalMapper:
         if len(free_a) == 0 or len(free_b) == 0:
             return
         fa, fb = kf.features, nb.features
-        rows, cols = epipolar_pairs(kf.T_cw, nb.T_cw, fa.normalised[free_a], fb.normalised[free_b], np.sqrt(CHI2_1DOF * sigma2[fb.octave[free_b]]) / fx)
+        tolerance = np.sqrt(CHI2_1DOF * sigma2[fb.octave[free_b]]) / fx
+        if fb.lens_jacobian is not None:  # the band as wide as the undistorted error's longest axis
+            tolerance = tolerance / np.linalg.svd(fb.lens_jacobian[free_b], compute_uv=False)[:, -1]
+        rows, cols = epipolar_pairs(kf.T_cw, nb.T_cw, fa.normalised[free_a], fb.normalised[free_b], tolerance)
         distances = hamming_pairs(fa.descriptors, fb.descriptors, free_a[rows], free_b[cols])
         rows, cols = best_unique_pairs(rows, cols, distances, TH_LOW, 0.6)
         if len(rows) == 0:
@@ -194,8 +197,10 @@ class LocalMapper:
         keep = rotation_consistent(fa.angle[free_a][rows], fb.angle[free_b][cols])
         ia, ib = free_a[rows[keep]], free_b[cols[keep]]
         points = triangulate(kf.T_cw, nb.T_cw, fa.normalised[ia], fb.normalised[ib])
+        lens_a = None if fa.lens_jacobian is None else fa.lens_jacobian[ia]
+        lens_b = None if fb.lens_jacobian is None else fb.lens_jacobian[ib]
         good, _ = check_points(
-            points, kf.T_cw, nb.T_cw, fa.normalised[ia], fb.normalised[ib], fx, sigma2[fa.octave[ia]], sigma2[fb.octave[ib]], min_parallax_cos
+            points, kf.T_cw, nb.T_cw, fa.normalised[ia], fb.normalised[ib], fx, sigma2[fa.octave[ia]], sigma2[fb.octave[ib]], min_parallax_cos, lens_a, lens_b
         )
         # scale consistency: distance ratio agrees with the octave ratio
         da = np.linalg.norm(points - kf.centre, axis=1)

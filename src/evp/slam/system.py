@@ -468,7 +468,8 @@ class SlamSystem(Estimator):
             return T_cw, 0
         positions, _ = self._map_point_arrays(matched[rows])
         inv_sigma2 = self.extractor.inv_level_sigma2[features.octave[rows]]
-        T_cw, inlier = optimise_pose(T_cw, positions, features.un_px[rows], inv_sigma2, self.K)
+        lens = None if features.lens_jacobian is None else features.lens_jacobian[rows]
+        T_cw, inlier = optimise_pose(T_cw, positions, features.un_px[rows], inv_sigma2, self.K, lens)
         matched[rows[~inlier]] = -1
         return T_cw, int(inlier.sum())
 

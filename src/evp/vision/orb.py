@@ -37,7 +37,14 @@ MAX_RAY_ANGLE_DEG = 70.0
 @dataclass
 class Features:
     """Keypoints of one image. ``un_px`` are undistorted pixel coordinates (ideal pinhole, same K),
-    the coordinates all geometry uses; ``normalised`` the same on the z = 1 plane."""
+    the coordinates all geometry uses; ``normalised`` the same on the z = 1 plane.
+
+    ``lens_jacobian`` (None for a lens without distortion: identity) is, per keypoint, the
+    derivative of the detected pixel with respect to the undistorted one
+    (:meth:`CameraModel.pixel_jacobian`). The detector's noise is isotropic in the detected image,
+    so an error e in undistorted pixels weighs as |lens_jacobian @ e|^2 / level sigma^2: a
+    fisheye feature 60 degrees off the axis is 4 x noisier radially in undistorted pixels than a
+    central one, and every optimiser and gate must know it (docs/decisions.md, "Camera models")."""
 
     px: np.ndarray  # (N, 2) float, as detected
     un_px: np.ndarray  # (N, 2)
@@ -45,12 +52,14 @@ class Features:
     octave: np.ndarray  # (N,) int
     angle: np.ndarray  # (N,) degrees
     descriptors: np.ndarray  # (N, 32) uint8
+    lens_jacobian: np.ndarray | None = None  # (N, 2, 2)
 
     def __len__(self) -> int:
         return len(self.px)
 
     def subset(self, rows: np.ndarray) -> Features:
-        return Features(self.px[rows], self.un_px[rows], self.normalised[rows], self.octave[rows], self.angle[rows], self.descriptors[rows])
+        jacobian = None if self.lens_jacobian is None else self.lens_jacobian[rows]
+        return Features(self.px[rows], self.un_px[rows], self.normalised[rows], self.octave[rows], self.angle[rows], self.descriptors[rows], jacobian)
 
 
 def usable_levels(settings: OrbSettings, camera: CameraModel) -> int:
@@ -152,7 +161,8 @@ class OrbExtractor:
         px = np.vstack([part[0] for part in parts])
         normalised = self.camera.undistort_points(px)
         un_px = normalised * [self.camera.fx, self.camera.fy] + [self.camera.cx, self.camera.cy]
-        return Features(px, un_px, normalised, *(np.concatenate([part[k] for part in parts]) for k in (1, 2)), np.vstack([part[3] for part in parts]))
+        jacobian = self.camera.pixel_jacobian(normalised) if self.camera.has_distortion else None
+        return Features(px, un_px, normalised, *(np.concatenate([part[k] for part in parts]) for k in (1, 2)), np.vstack([part[3] for part in parts]), jacobian)
 
     def _build_pyramid(self, pyramid: list[np.ndarray | None], built: deque) -> None:
         """Each level resized from the one before, as OpenCV builds its pyramid; its index is

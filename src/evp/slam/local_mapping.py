@@ -31,7 +31,7 @@ from evp.slam.map_adjustment import apply_solution, whole_map_problem, window_pr
 from evp.slam.point_fusion import fuse_points
 from evp.slam.projection import undistorted_bounds
 from evp.vision.matching import TH_LOW, best_unique_pairs, hamming_pairs, rotation_consistent
-from evp.vision.orb import OrbExtractor
+from evp.vision.orb import OrbExtractor, window_stretch
 
 # A keyframe that tracked fewer map points than this share of its keypoints is starved (fast
 # forward motion: most of the view is new each keyframe, and the points near the focus of
@@ -186,9 +186,8 @@ class LocalMapper:
         if len(free_a) == 0 or len(free_b) == 0:
             return
         fa, fb = kf.features, nb.features
-        tolerance = np.sqrt(CHI2_1DOF * sigma2[fb.octave[free_b]]) / fx
-        if fb.lens_jacobian is not None:  # the band as wide as the undistorted error's longest axis
-            tolerance = tolerance / np.linalg.svd(fb.lens_jacobian[free_b], compute_uv=False)[:, -1]
+        lens_b = None if fb.lens_jacobian is None else fb.lens_jacobian[free_b]
+        tolerance = np.sqrt(CHI2_1DOF * sigma2[fb.octave[free_b]]) / fx * window_stretch(lens_b)  # the band in detected pixels
         rows, cols = epipolar_pairs(kf.T_cw, nb.T_cw, fa.normalised[free_a], fb.normalised[free_b], tolerance)
         distances = hamming_pairs(fa.descriptors, fb.descriptors, free_a[rows], free_b[cols])
         rows, cols = best_unique_pairs(rows, cols, distances, TH_LOW, 0.6)

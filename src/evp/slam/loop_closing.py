@@ -193,7 +193,7 @@ class LoopCloser:
             return
         free = np.setdiff1d(np.arange(len(kf.features)), np.fromiter(matches, int, len(matches)))
         features = kf.features
-        radius = 10.0 * self.extractor.scale_factors[projection.level]
+        radius = 10.0 * self.extractor.scale_factors[projection.level] * projection.stretch
         a, b = match_in_window(
             self.map.store.descriptor[ids[projection.rows]],
             projection.uv,

@@ -62,6 +62,16 @@ class Features:
         return Features(self.px[rows], self.un_px[rows], self.normalised[rows], self.octave[rows], self.angle[rows], self.descriptors[rows], jacobian)
 
 
+def window_stretch(lens_jacobian: np.ndarray | None) -> np.ndarray | float:
+    """Per point, how many undistorted pixels one detected pixel spans at most (the inverse of the
+    lens Jacobian's smaller singular value; 1.0 without one): a search window or band of r detected
+    pixels, the detector's scale, needs r times this in the undistorted pixels matching works in.
+    On a fisheye 60 degrees off the axis, 4."""
+    if lens_jacobian is None:
+        return 1.0
+    return 1.0 / np.linalg.svd(lens_jacobian, compute_uv=False)[:, -1]
+
+
 def usable_levels(settings: OrbSettings, camera: CameraModel) -> int:
     """Pyramid levels to use: at most ``settings.pyramid_levels``, and only levels whose shorter
     side still holds one grid cell inside the FAST/ORB borders. On a small sensor (240x180) the
@@ -161,8 +171,13 @@ class OrbExtractor:
         px = np.vstack([part[0] for part in parts])
         normalised = self.camera.undistort_points(px)
         un_px = normalised * [self.camera.fx, self.camera.fy] + [self.camera.cx, self.camera.cy]
-        jacobian = self.camera.pixel_jacobian(normalised) if self.camera.has_distortion else None
+        jacobian = self.lens_jacobian(normalised)
         return Features(px, un_px, normalised, *(np.concatenate([part[k] for part in parts]) for k in (1, 2)), np.vstack([part[3] for part in parts]), jacobian)
+
+    def lens_jacobian(self, normalised: np.ndarray) -> np.ndarray | None:
+        """The lens Jacobians (``Features.lens_jacobian``) at (N, 2) normalised undistorted
+        coordinates; None for a lens without distortion."""
+        return self.camera.pixel_jacobian(normalised) if self.camera.has_distortion else None
 
     def _build_pyramid(self, pyramid: list[np.ndarray | None], built: deque) -> None:
         """Each level resized from the one before, as OpenCV builds its pyramid; its index is

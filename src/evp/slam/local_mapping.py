@@ -187,7 +187,8 @@ class LocalMapper:
             return
         fa, fb = kf.features, nb.features
         lens_b = None if fb.lens_jacobian is None else fb.lens_jacobian[free_b]
-        tolerance = np.sqrt(CHI2_1DOF * sigma2[fb.octave[free_b]]) / fx * window_stretch(lens_b)  # the band in detected pixels
+        # a chi-square gate, like the weighting: in detected pixels on every lens with distortion
+        tolerance = np.sqrt(CHI2_1DOF * sigma2[fb.octave[free_b]]) / fx * window_stretch(lens_b)
         rows, cols = epipolar_pairs(kf.T_cw, nb.T_cw, fa.normalised[free_a], fb.normalised[free_b], tolerance)
         distances = hamming_pairs(fa.descriptors, fb.descriptors, free_a[rows], free_b[cols])
         rows, cols = best_unique_pairs(rows, cols, distances, TH_LOW, 0.6)

@@ -9,7 +9,7 @@ import numpy as np
 
 from evp.optim.reprojection import pinhole_pixels
 from evp.slam.map import Map
-from evp.vision.orb import MAX_RAY_ANGLE_DEG, OrbExtractor, window_stretch
+from evp.vision.orb import MAX_RAY_ANGLE_DEG, OrbExtractor
 
 MIN_VIEW_COS = 0.5  # 60 degrees from the point's mean viewing direction
 
@@ -64,6 +64,8 @@ def project_points(
 
 
 def projected_stretch(extractor: OrbExtractor, uv: np.ndarray) -> np.ndarray | float:
-    """:func:`~evp.vision.orb.window_stretch` at (n, 2) undistorted pixels (1.0 without distortion)."""
+    """The extractor's window stretch at (n, 2) undistorted pixels (1.0 where its lens widens none)."""
+    if not extractor.widens_windows:
+        return 1.0
     camera = extractor.camera
-    return window_stretch(extractor.lens_jacobian((uv - [camera.cx, camera.cy]) / [camera.fx, camera.fy]))
+    return extractor.window_stretch(extractor.lens_jacobian((uv - [camera.cx, camera.cy]) / [camera.fx, camera.fy]))

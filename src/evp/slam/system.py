@@ -37,7 +37,7 @@ from evp.slam.scheduler import InlineScheduler, Scheduler
 from evp.types import CameraModel, Frame, PoseEstimate, TrackingState
 from evp.vision.images import grey_image
 from evp.vision.matching import TH_HIGH, TH_LOW, match_descriptors, match_in_window, rotation_consistent
-from evp.vision.orb import Features, OrbExtractor, window_stretch
+from evp.vision.orb import Features, OrbExtractor
 from evp.vision.vocabulary import BowVector, Vocabulary
 
 RELOCALISATION_CANDIDATES = 5  # keyframes verified by PnP per lost frame, best place first
@@ -321,7 +321,7 @@ class SlamSystem(Estimator):
                 self._init_reference = self._reference_here(features)
             return None
         ref = reference.features
-        radius = s.init_search_radius_px * window_stretch(ref.lens_jacobian)
+        radius = s.init_search_radius_px * self.extractor.window_stretch(ref.lens_jacobian)
         rows, cols = match_in_window(ref.descriptors, ref.un_px, features.descriptors, features.un_px, radius, TH_LOW, 0.9)
         keep = rotation_consistent(ref.angle[rows], features.angle[cols])
         rows, cols = rows[keep], cols[keep]

@@ -64,3 +64,32 @@ def test_fisheye_scaling_undistortion_and_parameters():
     with pytest.raises(ValueError, match="k1..k4"):
         CameraModel(640, 480, 200, 200, 320, 240, p1=0.01, lens=LensModel.EQUIDISTANT)
     assert CameraModel(640, 480, 200, 200, 320, 240, lens="equidistant").lens is LensModel.EQUIDISTANT
+
+
+@pytest.mark.parametrize("camera", [RATIONAL, FISHEYE], ids=["rational", "fisheye"])
+def test_pixel_jacobian_is_the_derivative_of_the_detected_pixel(camera):
+    xy = _rays(50, 70)[:, :2] / _rays(50, 70)[:, 2:]
+    step = 1e-4
+
+    def detected(undistorted_px):
+        return camera.project(np.column_stack([(undistorted_px - [camera.cx, camera.cy]) / [camera.fx, camera.fy], np.ones(len(undistorted_px))]))
+
+    px = xy * [camera.fx, camera.fy] + [camera.cx, camera.cy]
+    numeric = np.stack([(detected(px + d) - detected(px - d)) / (2 * step) for d in np.eye(2) * step], axis=-1)
+    assert np.allclose(camera.pixel_jacobian(xy), numeric, atol=1e-6)
+
+
+def test_a_peripheral_fisheye_feature_carries_less_information_radially_and_a_pinhole_the_same():
+    """The detector's isotropic pixel noise seen in undistorted pixels: information J^T J, along
+    the ray's radial direction cos^4(theta), tangentially (theta / tan(theta))^2."""
+    fisheye = CameraModel(640, 480, 200.0, 200.0, 319.5, 239.5, lens=LensModel.EQUIDISTANT)
+    theta = np.radians(60)
+    radial = np.array([np.cos(0.3), np.sin(0.3)])
+    J = fisheye.pixel_jacobian(np.tan(theta) * radial[None])[0]
+    information = J.T @ J
+    tangential = np.array([-radial[1], radial[0]])
+    assert radial @ information @ radial == pytest.approx(np.cos(theta) ** 4)
+    assert tangential @ information @ tangential == pytest.approx((theta / np.tan(theta)) ** 2)
+    assert np.allclose(fisheye.pixel_jacobian(np.zeros((1, 2))), np.eye(2))
+    pinhole = CameraModel(640, 480, 500.0, 500.0, 320.0, 240.0)
+    assert np.array_equal(pinhole.pixel_jacobian(np.array([[0.4, -0.3]])), np.eye(2)[None])

@@ -368,14 +368,8 @@ class CameraModel:
             return target
         xy = target.copy()
         for _ in range(iterations):
-            x, y = xy[:, 0], xy[:, 1]
-            r2 = x * x + y * y
-            radial, d_radial = self._radial(r2)
             residual = self.distort_normalized(xy) - target
-            j11 = radial + 2.0 * x * x * d_radial + 2.0 * self.p1 * y + 6.0 * self.p2 * x
-            j12 = 2.0 * x * y * d_radial + 2.0 * self.p1 * x + 2.0 * self.p2 * y
-            j21 = 2.0 * x * y * d_radial + 2.0 * self.p1 * x + 2.0 * self.p2 * y
-            j22 = radial + 2.0 * y * y * d_radial + 6.0 * self.p1 * y + 2.0 * self.p2 * x
+            j11, j12, j21, j22 = self._radtan_jacobian(xy)
             det = j11 * j22 - j12 * j21
             step_x = (j22 * residual[:, 0] - j12 * residual[:, 1]) / det
             step_y = (j11 * residual[:, 1] - j21 * residual[:, 0]) / det
@@ -384,6 +378,40 @@ class CameraModel:
             if np.max(np.abs(residual)) < 1e-15:
                 break
         return xy
+
+    def _radtan_jacobian(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Radtan: the entries j11 j12 j21 j22 of d(distorted) / d(undistorted) normalised coordinates."""
+        x, y = xy[:, 0], xy[:, 1]
+        r2 = x * x + y * y
+        radial, d_radial = self._radial(r2)
+        j11 = radial + 2.0 * x * x * d_radial + 2.0 * self.p1 * y + 6.0 * self.p2 * x
+        j12 = 2.0 * x * y * d_radial + 2.0 * self.p1 * x + 2.0 * self.p2 * y
+        j21 = 2.0 * x * y * d_radial + 2.0 * self.p1 * x + 2.0 * self.p2 * y
+        j22 = radial + 2.0 * y * y * d_radial + 6.0 * self.p1 * y + 2.0 * self.p2 * x
+        return j11, j12, j21, j22
+
+    def pixel_jacobian(self, xy: np.ndarray) -> np.ndarray:
+        """(N, 2, 2) derivative of the detected (distorted) pixel with respect to the undistorted
+        pinhole pixel (same K), at (N, 2) normalised undistorted coordinates: how the lens shrinks
+        an error measured in undistorted pixels into the image a detector works on. Identity for a
+        lens without distortion; for a fisheye, cos^2(theta) radially and theta / tan(theta)
+        tangentially (0.25 and 0.6 at 60 degrees off the axis)."""
+        if self.lens is LensModel.EQUIDISTANT:
+            r = np.hypot(xy[:, 0], xy[:, 1])
+            theta = np.arctan(r)
+            t2 = theta * theta
+            slope = 1.0 + t2 * (3.0 * self.k1 + t2 * (5.0 * self.k2 + t2 * (7.0 * self.k3 + t2 * 9.0 * self.k4)))
+            tiny = r < 1e-9  # on the axis: the limit, identity
+            safe = np.where(tiny, 1.0, r)
+            ratio = np.where(tiny, 1.0, self._theta_d(theta) / safe)  # distorted / undistorted radius
+            d_ratio = np.where(tiny, 0.0, (slope / (1.0 + r * r) - ratio) / safe)  # d ratio / d r
+            unit = xy / safe[:, None]
+            j = ratio[:, None, None] * np.eye(2) + (d_ratio * r)[:, None, None] * unit[:, :, None] * unit[:, None, :]
+        else:
+            j11, j12, j21, j22 = self._radtan_jacobian(xy)
+            j = np.stack([np.stack([j11, j12], axis=-1), np.stack([j21, j22], axis=-1)], axis=-2)
+        scale = np.array([self.fx, self.fy])
+        return j * scale[None, :, None] / scale[None, None, :]
 
     def _equidistant_bearings(self, distorted: np.ndarray, iterations: int = 20) -> np.ndarray:
         """Unit rays (N, 3) of distorted normalised coordinates: theta from theta_d by Newton's

@@ -61,6 +61,22 @@ def test_a_saved_map_loads_back_the_same(tmp_path):
         assert loaded.database.relocalisation_candidates(kf.bow, loaded.keyframes, 1) == [kf_id]
 
 
+def test_a_distorting_lens_keeps_its_jacobians_and_a_map_without_them_weighs_as_before(tmp_path):
+    """Each feature's lens Jacobian (how its noise is weighed) is saved with it; a map of an
+    undistorted camera has none, so its bundle adjustment weighs by pyramid level alone."""
+    original = _map(6, 20, np.random.default_rng(2))
+    assert original.gather_lens_jacobians(np.array([0, 1]), np.array([3, 4])) is None
+    for kf in original.keyframes.values():
+        kf.features.lens_jacobian = np.random.default_rng(kf.id).uniform(0.2, 1.0, (len(kf.features), 2, 2))
+    save_map(original, tmp_path / "map.npz")
+    loaded = load_map(tmp_path / "map.npz", SCALES)
+    for kf_id, kf in original.keyframes.items():
+        assert np.array_equal(loaded.keyframes[kf_id].features.lens_jacobian, kf.features.lens_jacobian)
+    gathered = loaded.gather_lens_jacobians(np.array([2, 0, 2]), np.array([5, 1, 7]))
+    assert np.array_equal(gathered[0], original.keyframes[2].features.lens_jacobian[5])
+    assert np.array_equal(gathered[1], original.keyframes[0].features.lens_jacobian[1])
+
+
 def test_each_array_is_read_from_the_file_once_however_many_keyframes(tmp_path, monkeypatch):
     """Indexing an ``np.load`` archive decompresses the whole array each time: read per keyframe,
     a 520-keyframe map took 26 GB to load. Reads must not grow with the keyframes."""

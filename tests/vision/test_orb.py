@@ -173,3 +173,9 @@ def test_features_are_kept_within_the_ray_cone_of_a_wide_fisheye():
     assert np.isfinite([u_min, v_min, u_max, v_max]).all()
     assert u_min == pytest.approx(fisheye.cx - reach) and u_max == pytest.approx(fisheye.cx + reach)
     assert np.all((features.un_px >= [u_min, v_min]) & (features.un_px <= [u_max, v_max]))
+    # each keeps its lens Jacobian, whose weakest direction (radial) sets how far a search
+    # window of detected pixels reaches in undistorted ones: 1 / cos^2(theta) on this lens
+    assert np.allclose(features.lens_jacobian, fisheye.pixel_jacobian(features.normalised))
+    theta = np.radians(angles)
+    assert np.allclose(orb_module.window_stretch(features.lens_jacobian), 1 / np.cos(theta) ** 2, rtol=1e-6)
+    assert pinhole.extract(image).lens_jacobian is None and orb_module.window_stretch(None) == 1.0

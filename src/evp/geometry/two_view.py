@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 
 from evp.optim.bundle_adjustment import BundleProblem, bundle_adjust
-from evp.optim.reprojection import CHI2_1DOF, CHI2_2DOF
+from evp.optim.reprojection import CHI2_1DOF, CHI2_2DOF, in_detected_pixels
 from evp.optim.rotation import nearest_rotation
 
 NEW_POINT_PARALLAX_COS = 0.9998  # ~1.1 deg: ORB-SLAM's parallax for a point from two keyframes
@@ -34,20 +34,30 @@ def check_points(
     sigma2_1: np.ndarray | float,
     sigma2_2: np.ndarray | float,
     min_parallax_cos: float,
+    lens_1: np.ndarray | None = None,
+    lens_2: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Mask of points in front of both cameras, reprojecting within chi-square bounds, seen with
-    enough parallax; and the cosine of each point's parallax angle."""
+    """Mask of points in front of both cameras, reprojecting within chi-square bounds (errors
+    weighed in the detected image through ``lens_1`` / ``lens_2``, ``Features.lens_jacobian``),
+    seen with enough parallax; and the cosine of each point's parallax angle."""
     c1 = T1_cw[:3, :3] @ points.T + T1_cw[:3, 3:4]
     c2 = T2_cw[:3, :3] @ points.T + T2_cw[:3, 3:4]
     good = np.isfinite(points).all(axis=1) & (c1[2] > 0) & (c2[2] > 0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        e1 = focal**2 * np.sum((c1[:2] / c1[2] - x1.T) ** 2, axis=0)
-        e2 = focal**2 * np.sum((c2[:2] / c2[2] - x2.T) ** 2, axis=0)
+        e1 = _squared_pixel_error(c1, x1, focal, lens_1)
+        e2 = _squared_pixel_error(c2, x2, focal, lens_2)
         ray1 = points - (-T1_cw[:3, :3].T @ T1_cw[:3, 3])
         ray2 = points - (-T2_cw[:3, :3].T @ T2_cw[:3, 3])
         cos = np.sum(ray1 * ray2, axis=1) / (np.linalg.norm(ray1, axis=1) * np.linalg.norm(ray2, axis=1))
     good &= (e1 < CHI2_2DOF * sigma2_1) & (e2 < CHI2_2DOF * sigma2_2) & (cos < min_parallax_cos)
     return good, cos
+
+
+def _squared_pixel_error(points_cam: np.ndarray, x: np.ndarray, focal: float, lens_jacobian: np.ndarray | None) -> np.ndarray:
+    """Squared reprojection errors (pixels) of (3, N) camera-frame points seen at normalised ``x``."""
+    if lens_jacobian is None:
+        return focal**2 * np.sum((points_cam[:2] / points_cam[2] - x.T) ** 2, axis=0)
+    return np.sum(in_detected_pixels(focal * (points_cam[:2] / points_cam[2]).T - focal * x, lens_jacobian) ** 2, axis=1)
 
 
 @dataclass

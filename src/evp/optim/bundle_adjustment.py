@@ -14,7 +14,7 @@ take left increments (rotation vector, translation) re-linearised at every itera
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import cv2
@@ -23,7 +23,7 @@ import scipy.linalg
 import scipy.sparse.linalg
 from scipy.sparse import bsr_matrix, csr_matrix
 
-from evp.optim.reprojection import CHI2_2DOF, HUBER_DELTA, reprojection_chi2
+from evp.optim.reprojection import CHI2_2DOF, HUBER_DELTA, in_detected_pixels, reprojection_chi2
 from evp.optim.rotation import nearest_rotation
 
 DENSE_POSE_LIMIT = 300  # free poses above which the reduced system is solved as a sparse matrix
@@ -38,8 +38,10 @@ class StopFlag(Protocol):
 
 @dataclass
 class BundleProblem:
-    """Observations (pose index, point index, undistorted pixel, octave sigma) of points by
-    poses; poses flagged in ``fixed`` are held constant (the gauge and the window's border)."""
+    """Observations (pose index, point index, undistorted pixel, octave sigma, and the lens's
+    Jacobian at the observation: ``Features.lens_jacobian``, None for a lens without distortion)
+    of points by poses; poses flagged in ``fixed`` are held constant (the gauge and the window's
+    border). Errors are weighed in the detected image, where the detector's noise is isotropic."""
 
     poses: np.ndarray  # (P, 4, 4) T_cw
     points: np.ndarray  # (M, 3)
@@ -49,12 +51,13 @@ class BundleProblem:
     sigma: np.ndarray  # (N,) pixel standard deviation (scale factor of the octave)
     fixed: np.ndarray  # (P,) bool
     K: np.ndarray
+    lens_jacobian: np.ndarray | None = None  # (N, 2, 2) d detected pixel / d undistorted pixel
 
 
 def observation_chi2(problem: BundleProblem, poses: np.ndarray, points: np.ndarray) -> np.ndarray:
     R = poses[problem.pose_index, :3, :3]
     pc = np.einsum("nij,nj->ni", R, points[problem.point_index]) + poses[problem.pose_index, :3, 3]
-    return reprojection_chi2(pc, problem.observed, problem.K, 1.0 / problem.sigma**2)
+    return reprojection_chi2(pc, problem.observed, problem.K, 1.0 / problem.sigma**2, problem.lens_jacobian)
 
 
 def _block_sums(index: np.ndarray, blocks: np.ndarray, count: int) -> np.ndarray:
@@ -70,6 +73,15 @@ def _outer(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return u[:, :, None] * v[:, None, :]
 
 
+def _through_lens(lens_jacobian: np.ndarray | None, row_u: np.ndarray, row_v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Jacobian rows (n, k) of the u and v residuals mapped into the detected image, as the
+    residuals are (:func:`~evp.optim.reprojection.in_detected_pixels`); as they are without a lens."""
+    if lens_jacobian is None:
+        return row_u, row_v
+    j = lens_jacobian
+    return j[:, 0, 0, None] * row_u + j[:, 0, 1, None] * row_v, j[:, 1, 0, None] * row_u + j[:, 1, 1, None] * row_v
+
+
 class _Linearisation:
     """Weighted residuals and the normal-equation blocks of the active observations at one estimate."""
 
@@ -83,7 +95,8 @@ class _Linearisation:
         iz = 1.0 / z
         u = K[0, 0] * pc[:, 0] * iz + K[0, 2]
         v = K[1, 1] * pc[:, 1] * iz + K[1, 2]
-        r = np.stack([u - problem.observed[active, 0], v - problem.observed[active, 1]], axis=1) * inv_sigma[:, None]
+        lens = None if problem.lens_jacobian is None else problem.lens_jacobian[active]
+        r = in_detected_pixels(np.stack([u - problem.observed[active, 0], v - problem.observed[active, 1]], axis=1) * inv_sigma[:, None], lens)
         # Huber kernel as iteratively reweighted least squares: the blocks use sqrt(weight)-scaled
         # residuals and Jacobians, the cost is the robust one
         e2 = np.sum(r * r, axis=1)
@@ -103,6 +116,7 @@ class _Linearisation:
         b, d = -a * x * iz, -c * y * iz
         P0 = a[:, None] * Ri[:, 0, :] + b[:, None] * Ri[:, 2, :]
         P1 = c[:, None] * Ri[:, 1, :] + d[:, None] * Ri[:, 2, :]
+        P0, P1 = _through_lens(lens, P0, P1)
         n_points, n_free = len(points), int(slot.max()) + 1 if len(slot) else 0
         self.V = _block_sums(point_index, _outer(P0, P0) + _outer(P1, P1), n_points)
         self.g_point = _block_sums(point_index, P0 * self.r[:, :1] + P1 * self.r[:, 1:], n_points)
@@ -112,6 +126,7 @@ class _Linearisation:
         zero = np.zeros(len(a))
         Q0 = np.stack([b * y, a * z - b * x, -a * y, a, zero, b], axis=1)
         Q1 = np.stack([d * y - c * z, -d * x, c * x, zero, c, d], axis=1)
+        Q0, Q1 = _through_lens(None if lens is None else lens[free], Q0, Q1)
         r_free = self.r[free]
         self.U = _block_sums(s, _outer(Q0, Q0) + _outer(Q1, Q1), n_free)
         self.g_pose = _block_sums(s, Q0 * r_free[:, :1] + Q1 * r_free[:, 1:], n_free)
@@ -195,7 +210,7 @@ def _solve(problem: BundleProblem, active: np.ndarray, iterations: int, robust: 
     poses = np.repeat(np.eye(4)[None], len(R), axis=0)
     poses[:, :3, :3] = [nearest_rotation(r) for r in R]
     poses[:, :3, 3] = t
-    return BundleProblem(poses, points, problem.pose_index, problem.point_index, problem.observed, problem.sigma, problem.fixed, problem.K)
+    return replace(problem, poses=poses, points=points)
 
 
 def bundle_adjust(

@@ -31,7 +31,7 @@ from evp.slam.map_adjustment import apply_solution, whole_map_problem, window_pr
 from evp.slam.point_fusion import fuse_points
 from evp.slam.projection import undistorted_bounds
 from evp.vision.matching import TH_LOW, best_unique_pairs, hamming_pairs, rotation_consistent
-from evp.vision.orb import OrbExtractor
+from evp.vision.orb import OrbExtractor, window_stretch
 
 # A keyframe that tracked fewer map points than this share of its keypoints is starved (fast
 # forward motion: most of the view is new each keyframe, and the points near the focus of
@@ -186,7 +186,10 @@ class LocalMapper:
         if len(free_a) == 0 or len(free_b) == 0:
             return
         fa, fb = kf.features, nb.features
-        rows, cols = epipolar_pairs(kf.T_cw, nb.T_cw, fa.normalised[free_a], fb.normalised[free_b], np.sqrt(CHI2_1DOF * sigma2[fb.octave[free_b]]) / fx)
+        lens_b = None if fb.lens_jacobian is None else fb.lens_jacobian[free_b]
+        # a chi-square gate, like the weighting: in detected pixels on every lens with distortion
+        tolerance = np.sqrt(CHI2_1DOF * sigma2[fb.octave[free_b]]) / fx * window_stretch(lens_b)
+        rows, cols = epipolar_pairs(kf.T_cw, nb.T_cw, fa.normalised[free_a], fb.normalised[free_b], tolerance)
         distances = hamming_pairs(fa.descriptors, fb.descriptors, free_a[rows], free_b[cols])
         rows, cols = best_unique_pairs(rows, cols, distances, TH_LOW, 0.6)
         if len(rows) == 0:
@@ -194,8 +197,10 @@ class LocalMapper:
         keep = rotation_consistent(fa.angle[free_a][rows], fb.angle[free_b][cols])
         ia, ib = free_a[rows[keep]], free_b[cols[keep]]
         points = triangulate(kf.T_cw, nb.T_cw, fa.normalised[ia], fb.normalised[ib])
+        lens_a = None if fa.lens_jacobian is None else fa.lens_jacobian[ia]
+        lens_b = None if fb.lens_jacobian is None else fb.lens_jacobian[ib]
         good, _ = check_points(
-            points, kf.T_cw, nb.T_cw, fa.normalised[ia], fb.normalised[ib], fx, sigma2[fa.octave[ia]], sigma2[fb.octave[ib]], min_parallax_cos
+            points, kf.T_cw, nb.T_cw, fa.normalised[ia], fb.normalised[ib], fx, sigma2[fa.octave[ia]], sigma2[fb.octave[ib]], min_parallax_cos, lens_a, lens_b
         )
         # scale consistency: distance ratio agrees with the octave ratio
         da = np.linalg.norm(points - kf.centre, axis=1)

@@ -137,7 +137,9 @@ class LoopCloser:
         Xa = positions[kf.point_ids[ia]] @ kf.T_cw[:3, :3].T + kf.T_cw[:3, 3]
         Xb = positions[loop_kf.point_ids[ib]] @ loop_kf.T_cw[:3, :3].T + loop_kf.T_cw[:3, 3]
         w = self.extractor.inv_level_sigma2
-        estimate = estimate_sim3(Xa, Xb, fa.un_px[ia], fb.un_px[ib], w[fa.octave[ia]], w[fb.octave[ib]], self.K, seed=kf.id)
+        lens_a = None if fa.lens_jacobian is None else fa.lens_jacobian[ia]
+        lens_b = None if fb.lens_jacobian is None else fb.lens_jacobian[ib]
+        estimate = estimate_sim3(Xa, Xb, fa.un_px[ia], fb.un_px[ib], w[fa.octave[ia]], w[fb.octave[ib]], self.K, seed=kf.id, lens_a=lens_a, lens_b=lens_b)
         if estimate is None:
             return None
         S_ab, inliers = estimate
@@ -167,8 +169,10 @@ class LoopCloser:
             return S_kw, {}, np.inf
         features = kf.features
         positions, inv_sigma2 = self.map.store.position[ids], self.extractor.inv_level_sigma2[features.octave[rows]]
-        T, agree = optimise_pose(S_kw.to_se3()[0], positions, features.un_px[rows], inv_sigma2, self.K)
-        rotation_std = float(rotation_std_deg(T, positions[agree], inv_sigma2[agree], self.K).max()) if agree.sum() >= 6 else np.inf
+        lens = None if features.lens_jacobian is None else features.lens_jacobian[rows]
+        T, agree = optimise_pose(S_kw.to_se3()[0], positions, features.un_px[rows], inv_sigma2, self.K, lens)
+        agreeing_lens = None if lens is None else lens[agree]
+        rotation_std = float(rotation_std_deg(T, positions[agree], inv_sigma2[agree], self.K, agreeing_lens).max()) if agree.sum() >= 6 else np.inf
         if rotation_std > LOOP_MAX_ROTATION_STD_DEG:
             return S_kw, {}, rotation_std
         scale = float(S_kw.s[0])
@@ -189,7 +193,7 @@ class LoopCloser:
             return
         free = np.setdiff1d(np.arange(len(kf.features)), np.fromiter(matches, int, len(matches)))
         features = kf.features
-        radius = 10.0 * self.extractor.scale_factors[projection.level]
+        radius = 10.0 * self.extractor.scale_factors[projection.level] * projection.stretch
         a, b = match_in_window(
             self.map.store.descriptor[ids[projection.rows]],
             projection.uv,

@@ -250,6 +250,21 @@ class Map:
             out[rows] = column[indices[rows]]
         return out if out is not None else np.zeros(0)
 
+    def gather_lens_jacobians(self, kf_ids: np.ndarray, indices: np.ndarray) -> np.ndarray | None:
+        """``features.lens_jacobian[index]`` of each (keyframe, feature index) pair; None when no
+        keyframe among them has one (a lens without distortion), identity for a keyframe without
+        one among others that have (read from a map file written before they were kept)."""
+        unique = np.unique(kf_ids).tolist()
+        if all(self.keyframes[k].features.lens_jacobian is None for k in unique):
+            return None
+        out = np.repeat(np.eye(2)[None], len(kf_ids), axis=0)
+        for kf_id in unique:
+            column = self.keyframes[kf_id].features.lens_jacobian
+            if column is not None:
+                rows = np.flatnonzero(kf_ids == kf_id)
+                out[rows] = column[indices[rows]]
+        return out
+
     def refresh_points(self, point_ids: list[int], scale_factors: np.ndarray, descriptor: bool = True) -> None:
         """Mean viewing direction and scale-invariance distance range of points, from the keyframes
         observing them (the range from the first keyframe's view and octave); with
@@ -375,6 +390,8 @@ class Map:
         for name in ("px", "un_px", "normalised", "octave", "angle", "descriptors"):
             arrays[f"feat_{name}"] = np.concatenate([getattr(k.features, name) for k in kfs]) if kfs else np.zeros(0)
         arrays["feat_point_ids"] = np.concatenate([k.point_ids for k in kfs]) if kfs else np.zeros(0, int)
+        if kfs and all(k.features.lens_jacobian is not None for k in kfs):
+            arrays["feat_lens_jacobian"] = np.concatenate([k.features.lens_jacobian for k in kfs])
         return arrays
 
     @classmethod
@@ -387,7 +404,8 @@ class Map:
         for row, kf_id in enumerate(data["kf_ids"]):
             a, b = offsets[row], offsets[row + 1]
             bow = BowVector(data["bow_words"][bow_offsets[row] : bow_offsets[row + 1]], data["bow_weights"][bow_offsets[row] : bow_offsets[row + 1]])
-            features = Features(*(data[f"feat_{n}"][a:b] for n in ("px", "un_px", "normalised", "octave", "angle", "descriptors")))
+            lens_jacobian = data["feat_lens_jacobian"][a:b] if "feat_lens_jacobian" in data else None
+            features = Features(*(data[f"feat_{n}"][a:b] for n in ("px", "un_px", "normalised", "octave", "angle", "descriptors")), lens_jacobian)
             kf = KeyFrame(
                 int(kf_id),
                 float(data["kf_timestamps"][row]),

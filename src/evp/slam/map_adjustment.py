@@ -31,6 +31,7 @@ def window_problem(slam_map: Map, kf_ids: list[int], point_ids: list[int], fixed
         scale_factors[octave],
         fixed,
         K,
+        slam_map.gather_lens_jacobians(observers, indices),
     )
 
 

@@ -25,7 +25,7 @@ def fuse_points(
     projected = project_points(slam_map, candidates, kf.T_cw, extractor, K, bounds)
     if projected is None:
         return set()
-    radius = radius_px * extractor.scale_factors[projected.level]
+    radius = radius_px * extractor.scale_factors[projected.level] * projected.stretch
     descriptors = slam_map.store.descriptor[np.asarray(candidates)[projected.rows]]
     a, b = match_in_window(descriptors, projected.uv, kf.features.descriptors, kf.features.un_px, radius, TH_LOW, 1.0, projected.level, kf.features.octave)
     changed: set[int] = set()

@@ -30,10 +30,12 @@ def optimise_pose(
     observed: np.ndarray,
     inv_sigma2: np.ndarray,
     K: np.ndarray,
+    lens_jacobian: np.ndarray | None = None,
     rounds: int = 4,
     iterations: int = 10,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Refined ``T_cw`` and the inlier mask; ``observed`` are undistorted pixel coordinates."""
+    """Refined ``T_cw`` and the inlier mask; ``observed`` are undistorted pixel coordinates, their
+    errors weighed in the detected image through ``lens_jacobian`` (``Features.lens_jacobian``)."""
     T = T_cw.copy()
     inlier = np.ones(len(points), bool)
     converged_on = None  # (robust, inlier set) of the last converged solve: a repeat would not move
@@ -41,17 +43,20 @@ def optimise_pose(
         robust = round_index < rounds - 2
         repeat = converged_on is not None and converged_on[0] == robust and np.array_equal(converged_on[1], inlier)
         if inlier.sum() >= 3 and not repeat:
-            T, converged = _gauss_newton(T, points[inlier], observed[inlier], inv_sigma2[inlier], K, robust, iterations)
+            lens = None if lens_jacobian is None else lens_jacobian[inlier]
+            T, converged = _gauss_newton(T, points[inlier], observed[inlier], inv_sigma2[inlier], K, lens, robust, iterations)
             converged_on = (robust, inlier) if converged else None
-        inlier = reprojection_chi2(points @ T[:3, :3].T + T[:3, 3], observed, K, inv_sigma2) < CHI2_2DOF
+        inlier = reprojection_chi2(points @ T[:3, :3].T + T[:3, 3], observed, K, inv_sigma2, lens_jacobian) < CHI2_2DOF
     T[:3, :3] = nearest_rotation(T[:3, :3])  # products of rotations drift off SO(3), slowly
     return T, inlier
 
 
-def _gauss_newton(T: np.ndarray, P: np.ndarray, obs: np.ndarray, w_info: np.ndarray, K: np.ndarray, robust: bool, iterations: int) -> tuple[np.ndarray, bool]:
+def _gauss_newton(
+    T: np.ndarray, P: np.ndarray, obs: np.ndarray, w_info: np.ndarray, K: np.ndarray, lens_jacobian: np.ndarray | None, robust: bool, iterations: int
+) -> tuple[np.ndarray, bool]:
     """Up to ``iterations`` Gauss-Newton steps from ``T``; the pose and whether it converged."""
     for _ in range(iterations):
-        xi = _gauss_newton_step(T, P, obs, w_info, K, robust)
+        xi = _gauss_newton_step(T, P, obs, w_info, K, lens_jacobian, robust)
         if xi is None:
             return T, False
         T = apply_increment(T, xi)
@@ -60,11 +65,12 @@ def _gauss_newton(T: np.ndarray, P: np.ndarray, obs: np.ndarray, w_info: np.ndar
     return T, False
 
 
-def rotation_std_deg(T_cw: np.ndarray, points: np.ndarray, inv_sigma2: np.ndarray, K: np.ndarray) -> np.ndarray:
+def rotation_std_deg(T_cw: np.ndarray, points: np.ndarray, inv_sigma2: np.ndarray, K: np.ndarray, lens_jacobian: np.ndarray | None = None) -> np.ndarray:
     """Standard deviation (degrees) of the pose's rotation about each camera axis, at one pixel of
-    noise per pyramid-level sigma: how well these points fix the pose. Points in a strip of the
-    image, on a plane, leave tilt and sideways shift nearly interchangeable (a large value)."""
-    _, J = _residuals_and_jacobian(T_cw, points, np.zeros((len(points), 2)), K)
+    noise per pyramid-level sigma in the detected image: how well these points fix the pose.
+    Points in a strip of the image, on a plane, leave tilt and sideways shift nearly
+    interchangeable (a large value)."""
+    _, J = _residuals_and_jacobian(T_cw, points, np.zeros((len(points), 2)), K, lens_jacobian)
     WJ = (J * inv_sigma2[:, None]).reshape(-1, 6)
     information = WJ.T @ J.reshape(-1, 6)
     try:
@@ -74,9 +80,10 @@ def rotation_std_deg(T_cw: np.ndarray, points: np.ndarray, inv_sigma2: np.ndarra
     return np.degrees(np.sqrt(np.maximum(np.diag(covariance)[:3], 0.0)))
 
 
-def _residuals_and_jacobian(T: np.ndarray, P: np.ndarray, obs: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _residuals_and_jacobian(T: np.ndarray, P: np.ndarray, obs: np.ndarray, K: np.ndarray, lens_jacobian: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """Reprojection residuals (2, N: u rows, then v rows) and their Jacobian (2, N, 6) with
-    respect to a left increment ``xi = (omega, v)`` of ``T``."""
+    respect to a left increment ``xi = (omega, v)`` of ``T``; both mapped into the detected image
+    by ``lens_jacobian`` when there is one."""
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     pc = P @ T[:3, :3].T + T[:3, 3]
     iz = 1.0 / np.maximum(pc[:, 2], 1e-6)
@@ -96,12 +103,17 @@ def _residuals_and_jacobian(T: np.ndarray, P: np.ndarray, obs: np.ndarray, K: np
     J[1, :, 2] = fy * xz
     J[1, :, 4] = fy * iz
     J[1, :, 5] = -fy * yz * iz
+    if lens_jacobian is not None:
+        r = np.einsum("nij,jn->in", lens_jacobian, r)
+        J = np.einsum("nij,jnk->ink", lens_jacobian, J)
     return r, J
 
 
-def _gauss_newton_step(T: np.ndarray, P: np.ndarray, obs: np.ndarray, w_info: np.ndarray, K: np.ndarray, robust: bool) -> np.ndarray | None:
+def _gauss_newton_step(
+    T: np.ndarray, P: np.ndarray, obs: np.ndarray, w_info: np.ndarray, K: np.ndarray, lens_jacobian: np.ndarray | None, robust: bool
+) -> np.ndarray | None:
     """The increment ``xi`` minimising the (Huber-weighted) reprojection error to first order."""
-    r, J = _residuals_and_jacobian(T, P, obs, K)
+    r, J = _residuals_and_jacobian(T, P, obs, K, lens_jacobian)
     weight = w_info
     if robust:
         e = np.sqrt((r[0] * r[0] + r[1] * r[1]) * w_info)

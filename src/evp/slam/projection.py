@@ -20,6 +20,7 @@ class Projection:
     uv: np.ndarray  # (n, 2) undistorted pixel coordinates
     level: np.ndarray  # (n,) predicted pyramid level
     view_cos: np.ndarray  # (n,) cosine between the viewing ray and the point's mean direction
+    stretch: np.ndarray | float  # (n,) search-window factor where each lands (``window_stretch``)
 
 
 def undistorted_bounds(extractor: OrbExtractor) -> tuple[float, float, float, float]:
@@ -59,4 +60,12 @@ def project_points(
     with np.errstate(divide="ignore"):
         level = np.ceil(np.log(max_d[rows] / distance[rows]) / np.log(extractor.settings.scale_factor))
     level = np.clip(np.nan_to_num(level, nan=0.0), 0, len(extractor.scale_factors) - 1).astype(int)
-    return Projection(rows, uv[rows], level, view_cos[rows])
+    return Projection(rows, uv[rows], level, view_cos[rows], projected_stretch(extractor, uv[rows]))
+
+
+def projected_stretch(extractor: OrbExtractor, uv: np.ndarray) -> np.ndarray | float:
+    """The extractor's window stretch at (n, 2) undistorted pixels (1.0 where its lens widens none)."""
+    if not extractor.widens_windows:
+        return 1.0
+    camera = extractor.camera
+    return extractor.window_stretch(extractor.lens_jacobian((uv - [camera.cx, camera.cy]) / [camera.fx, camera.fy]))

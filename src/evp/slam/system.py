@@ -32,7 +32,7 @@ from evp.slam.loop_closing import LoopClosure
 from evp.slam.map import KeyFrame, Map
 from evp.slam.map_adjustment import adjust_whole_map
 from evp.slam.pose_optimizer import optimise_pose
-from evp.slam.projection import project_points, undistorted_bounds
+from evp.slam.projection import project_points, projected_stretch, undistorted_bounds
 from evp.slam.scheduler import InlineScheduler, Scheduler
 from evp.types import CameraModel, Frame, PoseEstimate, TrackingState
 from evp.vision.images import grey_image
@@ -321,7 +321,8 @@ class SlamSystem(Estimator):
                 self._init_reference = self._reference_here(features)
             return None
         ref = reference.features
-        rows, cols = match_in_window(ref.descriptors, ref.un_px, features.descriptors, features.un_px, s.init_search_radius_px, TH_LOW, 0.9)
+        radius = s.init_search_radius_px * self.extractor.window_stretch(ref.lens_jacobian)
+        rows, cols = match_in_window(ref.descriptors, ref.un_px, features.descriptors, features.un_px, radius, TH_LOW, 0.9)
         keep = rotation_consistent(ref.angle[rows], features.angle[cols])
         rows, cols = rows[keep], cols[keep]
         if len(rows) < s.init_min_matches:
@@ -468,7 +469,8 @@ class SlamSystem(Estimator):
             return T_cw, 0
         positions, _ = self._map_point_arrays(matched[rows])
         inv_sigma2 = self.extractor.inv_level_sigma2[features.octave[rows]]
-        T_cw, inlier = optimise_pose(T_cw, positions, features.un_px[rows], inv_sigma2, self.K)
+        lens = None if features.lens_jacobian is None else features.lens_jacobian[rows]
+        T_cw, inlier = optimise_pose(T_cw, positions, features.un_px[rows], inv_sigma2, self.K, lens)
         matched[rows[~inlier]] = -1
         return T_cw, int(inlier.sum())
 
@@ -489,8 +491,9 @@ class SlamSystem(Estimator):
         with np.errstate(divide="ignore", invalid="ignore"):
             uv = np.c_[self.K[0, 0] * pc[:, 0] / pc[:, 2] + self.K[0, 2], self.K[1, 1] * pc[:, 1] / pc[:, 2] + self.K[1, 2]]
         octave = last.features.octave[rows_last]
+        stretch = projected_stretch(self.extractor, np.where(front[:, None], uv, self.K[:2, 2]))  # behind the camera: not searched
         for widen in (1.0, 2.0):
-            radius = widen * self.settings.motion_search_radius_px * self.extractor.scale_factors[octave]
+            radius = widen * self.settings.motion_search_radius_px * self.extractor.scale_factors[octave] * stretch
             a, b = match_in_window(
                 descriptors[front], uv[front], features.descriptors, features.un_px, radius[front], TH_HIGH, 0.9, octave[front], features.octave
             )
@@ -593,7 +596,7 @@ class SlamSystem(Estimator):
                 self.map.points[point_id].visible += 1
             free = np.flatnonzero(matched < 0)
             descriptors = self.map.store.descriptor[candidates]
-            radius = np.where(projection.view_cos > 0.998, 2.5, 4.0) * radius_px / 4.0 * self.extractor.scale_factors[projection.level]
+            radius = np.where(projection.view_cos > 0.998, 2.5, 4.0) * radius_px / 4.0 * self.extractor.scale_factors[projection.level] * projection.stretch
             a, b = match_in_window(
                 descriptors, projection.uv, features.descriptors[free], features.un_px[free], radius, TH_HIGH, 0.8, projection.level, features.octave[free]
             )

@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from evp.config import OrbSettings
-from evp.types import CameraModel
+from evp.types import CameraModel, LensModel
 
 CELL_PX = 30  # grid cell side on each pyramid level (ORB-SLAM's W)
 EDGE_PX = 19  # FAST/ORB border
@@ -37,7 +37,14 @@ MAX_RAY_ANGLE_DEG = 70.0
 @dataclass
 class Features:
     """Keypoints of one image. ``un_px`` are undistorted pixel coordinates (ideal pinhole, same K),
-    the coordinates all geometry uses; ``normalised`` the same on the z = 1 plane."""
+    the coordinates all geometry uses; ``normalised`` the same on the z = 1 plane.
+
+    ``lens_jacobian`` (None for a lens without distortion: identity) is, per keypoint, the
+    derivative of the detected pixel with respect to the undistorted one
+    (:meth:`CameraModel.pixel_jacobian`). The detector's noise is isotropic in the detected image,
+    so an error e in undistorted pixels weighs as |lens_jacobian @ e|^2 / level sigma^2: a
+    fisheye feature 60 degrees off the axis is 4 x noisier radially in undistorted pixels than a
+    central one, and every optimiser and gate must know it (docs/decisions.md, "Camera models")."""
 
     px: np.ndarray  # (N, 2) float, as detected
     un_px: np.ndarray  # (N, 2)
@@ -45,12 +52,24 @@ class Features:
     octave: np.ndarray  # (N,) int
     angle: np.ndarray  # (N,) degrees
     descriptors: np.ndarray  # (N, 32) uint8
+    lens_jacobian: np.ndarray | None = None  # (N, 2, 2)
 
     def __len__(self) -> int:
         return len(self.px)
 
     def subset(self, rows: np.ndarray) -> Features:
-        return Features(self.px[rows], self.un_px[rows], self.normalised[rows], self.octave[rows], self.angle[rows], self.descriptors[rows])
+        jacobian = None if self.lens_jacobian is None else self.lens_jacobian[rows]
+        return Features(self.px[rows], self.un_px[rows], self.normalised[rows], self.octave[rows], self.angle[rows], self.descriptors[rows], jacobian)
+
+
+def window_stretch(lens_jacobian: np.ndarray | None) -> np.ndarray | float:
+    """Per point, how many undistorted pixels one detected pixel spans at most (the inverse of the
+    lens Jacobian's smaller singular value; 1.0 without one): a search window or band of r detected
+    pixels, the detector's scale, needs r times this in the undistorted pixels matching works in.
+    On a fisheye 60 degrees off the axis, 4."""
+    if lens_jacobian is None:
+        return 1.0
+    return 1.0 / np.linalg.svd(lens_jacobian, compute_uv=False)[:, -1]
 
 
 def usable_levels(settings: OrbSettings, camera: CameraModel) -> int:
@@ -120,6 +139,10 @@ class OrbExtractor:
         ]
         self._parallel = parallel if levels > 1 else None
         self._level_masks = _cone_masks(camera, self.scale_factors)
+        # Search windows are widened by the lens (``window_stretch``) on a fisheye only: there they
+        # reach 4 x at 60 degrees, while a radtan lens's reach 1.16 at most (the phone preset's corners), and that
+        # widening only let in look-alikes (rendered circle seed 2: 0.0103 -> 0.0118 m, decisions.md).
+        self.widens_windows = camera.lens is LensModel.EQUIDISTANT
 
     def extract(self, grey: np.ndarray, budget: int = 1) -> Features:
         """``budget`` times the configured features (1 to 3: the detectors keep 3 times the quota).
@@ -152,7 +175,17 @@ class OrbExtractor:
         px = np.vstack([part[0] for part in parts])
         normalised = self.camera.undistort_points(px)
         un_px = normalised * [self.camera.fx, self.camera.fy] + [self.camera.cx, self.camera.cy]
-        return Features(px, un_px, normalised, *(np.concatenate([part[k] for part in parts]) for k in (1, 2)), np.vstack([part[3] for part in parts]))
+        jacobian = self.lens_jacobian(normalised)
+        return Features(px, un_px, normalised, *(np.concatenate([part[k] for part in parts]) for k in (1, 2)), np.vstack([part[3] for part in parts]), jacobian)
+
+    def window_stretch(self, lens_jacobian: np.ndarray | None) -> np.ndarray | float:
+        """:func:`window_stretch` where this lens widens search windows, else 1.0."""
+        return window_stretch(lens_jacobian) if self.widens_windows else 1.0
+
+    def lens_jacobian(self, normalised: np.ndarray) -> np.ndarray | None:
+        """The lens Jacobians (``Features.lens_jacobian``) at (N, 2) normalised undistorted
+        coordinates; None for a lens without distortion."""
+        return self.camera.pixel_jacobian(normalised) if self.camera.has_distortion else None
 
     def _build_pyramid(self, pyramid: list[np.ndarray | None], built: deque) -> None:
         """Each level resized from the one before, as OpenCV builds its pyramid; its index is

@@ -50,6 +50,7 @@ from evp.config import MonitorSettings, NavigationSettings
 from evp.fusion.geodesy import EnuFrame
 from evp.fusion.gps_heading import WorldAlignment, align_to_gps, horizontal_spread
 from evp.fusion.gps_monitor import GpsMonitor, GpsTrust
+from evp.fusion.inertial_refinement import refine_inertial
 from evp.fusion.innovation import Innovation
 from evp.fusion.map_georeference import MapGeoreference
 from evp.fusion.measurements import BaroAltitude, GpsPosition, RangeHeight, VisualPose, WheelSpeed, YawRate
@@ -453,6 +454,8 @@ class NavigationStage:
             if stride > 1 and len(window) < s.vi_init_min_keyframes:
                 break
             alignment = initialise_visual_inertial(window, self._imu, self.T_body_cam, s)
+            if alignment.observable and s.vi_init_refine:
+                alignment = refine_inertial(window, self._imu, self.T_body_cam, alignment, s)
             if alignment.observable:
                 contradiction = self._baro_contradiction(alignment, window)
                 if contradiction is None:

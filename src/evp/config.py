@@ -317,7 +317,7 @@ class NavigationSettings(_Section):
     )
     vi_init_refine: bool = Field(
         False,
-        description="visual-inertial initialisation: refine the linear alignment by maximum likelihood with the accelerometer bias (ORB-SLAM3's inertial-only optimisation, evp.fusion.inertial_refinement) before the filter starts; off: on the rendered circle it moved the fused SE3 ATE 7.7/5.4/2.2 cm to 5.0/4.9/4.4 (seeds 1-3), no clear gain (docs/decisions.md)",
+        description="visual-inertial initialisation: refine the linear alignment by maximum likelihood with the accelerometer bias (ORB-SLAM3's inertial-only optimisation, evp.fusion.inertial_refinement) before the filter starts; off: on the rendered circle it moved the fused SE3 ATE 7.7/5.4/2.2 cm to 6.0/4.9/4.4 (seeds 1-3), no clear gain (docs/decisions.md)",
     )
 
 

@@ -319,6 +319,20 @@ class NavigationSettings(_Section):
     vi_init_max_gravity_error_m_s2: float = Field(
         0.5, gt=0, description="visual-inertial initialisation: a solved gravity whose magnitude is further than this from g is refused (VINS-Mono: 0.5)"
     )
+    vi_refine_position_sigma_m: float = Field(
+        0.007,
+        gt=0,
+        description="inertial refinement: the keyframe positions' noise (1 sigma per axis, metres); SLAM's refined poses on the rendered circle scatter 5-7 mm about the truth frame to frame, white (their second differences shrink as 1/dt^2)",
+    )
+    vi_refine_max_scale_sigma: float = Field(
+        0.04,
+        gt=0,
+        description="inertial refinement: the filter starts only once the refined scale's 1-sigma is below this share (the rendered circle: 7.6-9.2 s into the walk at 4 %; 3 % was never reached within 10 s windows)",
+    )
+    vi_init_refine: bool = Field(
+        False,
+        description="visual-inertial initialisation: start the filter from the maximum-likelihood refinement (ORB-SLAM3's inertial-only optimisation, evp.fusion.inertial_refinement) over every keyframe since the first, seeded by the newest window's linear alignment, once its scale sigma is under vi_refine_max_scale_sigma; rendered circle seeds 1-3 SE3 ATE 7.7/5.4/2.2 -> 1.5/3.5/2.0 cm, EuRoC MH01 6.6 -> 6.0 mm, but the start comes later (4-9 s into the walk) and the drone flight is not measured with it: off by default",
+    )
 
 
 class MavlinkSettings(_Section):

@@ -50,6 +50,7 @@ from evp.config import MonitorSettings, NavigationSettings
 from evp.fusion.geodesy import EnuFrame
 from evp.fusion.gps_heading import WorldAlignment, align_to_gps, horizontal_spread
 from evp.fusion.gps_monitor import GpsMonitor, GpsTrust
+from evp.fusion.inertial_refinement import refine_inertial
 from evp.fusion.innovation import Innovation
 from evp.fusion.map_georeference import MapGeoreference
 from evp.fusion.measurements import BaroAltitude, GpsPosition, RangeHeight, VisualPose, WheelSpeed, YawRate
@@ -77,6 +78,10 @@ START_VELOCITY_SIGMA_M_S = 0.1
 START_ATTITUDE_SIGMA_RAD = 0.02
 START_MAP_ATTITUDE_SIGMA_RAD = 0.02
 START_MAP_POSITION_SIGMA_M = 0.01
+# With navigation.vi_init_refine, the keyframes kept from the first (30 s at 0.25 s): the
+# refinement needs the standing start, which is what makes a walker's scale observable (the
+# rendered circle's 10 s windows mid-lap left it at 11-13 % sigma).
+REFINE_KEYFRAMES = 120
 # IMU samples kept while waiting to relocalise in a saved map: its start needs the one at or before
 # the relocalised frame, which a frame's telemetry (up to its stamp) always brings in (1 s at 200 Hz).
 SAVED_MAP_IMU_KEPT = 200
@@ -436,12 +441,14 @@ class NavigationStage:
     def _collect(self, estimate: PoseEstimate) -> None:
         """Keep the pose as a keyframe when it is far enough after the last, and try to initialise:
         over the newest window of keyframes, then over windows of every 2nd and 4th one
-        (:data:`VI_INIT_STRIDES`), from the IMU, else from the wheels."""
+        (:data:`VI_INIT_STRIDES`), from the IMU, else from the wheels. With ``vi_init_refine`` a
+        window's alignment (however uncertain) seeds the inertial refinement over every 2nd
+        keyframe since the first, which starts the filter once its scale's sigma is small enough."""
         s = self.settings
         if self._keyframes and estimate.timestamp - self._keyframes[-1][0] < s.vi_init_keyframe_interval_s:
             return
         self._keyframes.append((estimate.timestamp, estimate.T_world_cam))
-        del self._keyframes[: -s.vi_init_window_keyframes * VI_INIT_STRIDES[-1]]
+        del self._keyframes[: -(REFINE_KEYFRAMES if s.vi_init_refine else s.vi_init_window_keyframes * VI_INIT_STRIDES[-1])]
         oldest = self._keyframes[0][0]
         keep = next((i for i, sample in enumerate(self._imu) if sample.timestamp >= oldest), len(self._imu))
         del self._imu[: max(0, keep - 1)]  # one sample at or before the oldest keyframe stays
@@ -452,7 +459,16 @@ class NavigationStage:
             window = self._keyframes[::-stride][: s.vi_init_window_keyframes][::-1]
             if stride > 1 and len(window) < s.vi_init_min_keyframes:
                 break
-            alignment = initialise_visual_inertial(window, self._imu, self.T_body_cam, s)
+            if s.vi_init_refine:  # the window's alignment, however uncertain, seeds the refinement over every keyframe
+                alignment = initialise_visual_inertial(window, self._imu, self.T_body_cam, s.model_copy(update={"vi_init_max_scale_sigma": 1.0}))
+            else:
+                alignment = initialise_visual_inertial(window, self._imu, self.T_body_cam, s)
+            if alignment.observable and s.vi_init_refine:
+                history = self._keyframes[::-2][::-1]  # every keyframe since the first, 0.5 s apart
+                alignment = refine_inertial(history, self._imu, self.T_body_cam, alignment, s)
+                window = history
+                if alignment.observable and not alignment.scale_sigma <= s.vi_refine_max_scale_sigma:
+                    alignment = replace(alignment, observable=False, reason=f"refined scale not yet determined: +-{100 * alignment.scale_sigma:.1f} %")
             if alignment.observable:
                 contradiction = self._baro_contradiction(alignment, window)
                 if contradiction is None:

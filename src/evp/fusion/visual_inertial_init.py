@@ -20,6 +20,7 @@ import numpy as np
 
 from evp.config import NavigationSettings
 from evp.fusion.nav_state import NavState, so3_exp, so3_log
+from evp.fusion.preintegration import preintegrate, samples_between
 from evp.types import ImuSample
 
 GRAVITY_REFINEMENTS = 4  # VINS-Mono iterates its tangent-plane refinement 4 times
@@ -40,6 +41,7 @@ class InertialAlignment:
     gyro_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
     acceleration_std_m_s2: float = float("nan")  # the excitation that was measured
     scale_sigma: float = float("nan")  # the scale's 1-sigma, as a share of it
+    accel_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))  # m/s^2, body axes; zero unless refined
 
     @property
     def R_world_map(self) -> np.ndarray:
@@ -63,47 +65,11 @@ class InertialAlignment:
             R_wm @ velocity_map,
             R_world_body,
             gyro_bias=self.gyro_bias.copy(),
+            accel_bias=self.accel_bias.copy(),
             log_scale=float(np.log(self.scale)),
             R_world_map=R_wm,
             map_anchored=True,
         )
-
-
-@dataclass(frozen=True)
-class _Preintegrated:
-    dt: float
-    dR: np.ndarray  # rotation from the body at the interval's start to its end
-    dv: np.ndarray  # velocity change minus gravity's, in the start body frame
-    dp: np.ndarray  # position change minus velocity's and gravity's, in the start body frame
-    dR_dbg: np.ndarray  # right-perturbation Jacobian of dR with respect to the gyro bias
-
-
-def _samples_between(times: np.ndarray, gyro: np.ndarray, accel: np.ndarray, t0: float, t1: float):
-    """The IMU readings in [t0, t1], with readings interpolated linearly at t0 and t1."""
-    inside = (times > t0) & (times < t1)
-    ends = [np.interp(t, times, column) for t in (t0, t1) for column in (*gyro.T, *accel.T)]
-    start, end = np.reshape(ends[:6], 6), np.reshape(ends[6:], 6)
-    t = np.concatenate([[t0], times[inside], [t1]])
-    w = np.vstack([start[:3], gyro[inside], end[:3]])
-    f = np.vstack([start[3:], accel[inside], end[3:]])
-    return t, w, f
-
-
-def _preintegrate(t: np.ndarray, w: np.ndarray, f: np.ndarray, gyro_bias: np.ndarray) -> _Preintegrated:
-    """The strapdown step of :mod:`evp.fusion.strapdown` (mean rate, trapezoidal velocity,
-    exact double integral of a linear acceleration) in the start body frame, without gravity."""
-    dR, dv, dp, J = np.eye(3), np.zeros(3), np.zeros(3), np.zeros((3, 3))
-    for j in range(len(t) - 1):
-        h = t[j + 1] - t[j]
-        step = so3_exp((0.5 * (w[j] + w[j + 1]) - gyro_bias) * h)
-        a0 = dR @ f[j]
-        dR_next = dR @ step
-        a1 = dR_next @ f[j + 1]
-        dp = dp + dv * h + h * h * (a0 / 3.0 + a1 / 6.0)
-        dv = dv + 0.5 * (a0 + a1) * h
-        J = step.T @ J - h * np.eye(3)  # small-step right Jacobian taken as identity
-        dR = dR_next
-    return _Preintegrated(t[-1] - t[0], dR, dv, dp, J)
 
 
 def initialise_visual_inertial(
@@ -129,18 +95,18 @@ def initialise_visual_inertial(
     stamps = [k[0] for k in keyframes]
     R_body = [T[:3, :3] @ R_bc.T for _, T in keyframes]  # R_map_body
     centres = np.array([T[:3, 3] for _, T in keyframes])  # camera positions, map units
-    readings = [_samples_between(times, gyro, accel, stamps[k], stamps[k + 1]) for k in range(n - 1)]
+    readings = [samples_between(times, gyro, accel, stamps[k], stamps[k + 1]) for k in range(n - 1)]
 
     gyro_bias = np.zeros(3)
     for _ in range(2):  # Gauss-Newton: the Jacobian is taken at the current bias
-        pre = [_preintegrate(*r, gyro_bias) for r in readings]
+        pre = [preintegrate(*r, gyro_bias) for r in readings]
         JtJ, Jte = np.zeros((3, 3)), np.zeros(3)
         for k, p in enumerate(pre):
             error = so3_log(p.dR.T @ R_body[k].T @ R_body[k + 1])
             JtJ += p.dR_dbg.T @ p.dR_dbg
             Jte += p.dR_dbg.T @ error
         gyro_bias = gyro_bias + np.linalg.solve(JtJ, Jte)
-    pre = [_preintegrate(*r, gyro_bias) for r in readings]
+    pre = [preintegrate(*r, gyro_bias) for r in readings]
 
     mean_force = np.array([R_body[k] @ p.dv / p.dt for k, p in enumerate(pre)])  # specific force, map axes
     excitation = float(np.sqrt(np.mean(np.sum((mean_force - mean_force.mean(axis=0)) ** 2, axis=1))))

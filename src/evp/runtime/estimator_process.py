@@ -77,6 +77,7 @@ class EstimatorProcess:
         context = multiprocessing.get_context("spawn")
         self._connection, child = context.Pipe()
         self._partner = None
+        self._partner_died = False  # the partner ended first (the reader then stopped this one)
         if partner is not None:
             ours, theirs = context.Pipe()
             self._partner = context.Process(target=partner[0], args=(theirs, *partner[1]), name=f"{name}-vision", daemon=True)
@@ -153,6 +154,7 @@ class EstimatorProcess:
             if self._connection not in wait(watched):  # the partner ended
                 watched.remove(self._partner.sentinel)
                 if not self._closing:  # the pair dies together: the supervisor starts a new pair
+                    self._partner_died = True
                     self._process.kill()
                 continue
             try:
@@ -184,11 +186,11 @@ class EstimatorProcess:
     def _on_exit(self) -> None:
         if not self._closing:
             self._closing = True
-            partner = self._partner
-            if partner is not None and partner.exitcode is not None and partner.exitcode != 0:
-                self._events.on_exit(f"vision process exited (code {partner.exitcode})")
-            else:
-                self._events.on_exit(f"estimator process exited (code {self._process.exitcode})")
+            # a process's pipe closes a moment before it can be reaped: wait for its exit code
+            dead = self._partner if self._partner_died else self._process
+            dead.join(timeout=1.0)
+            name = "vision" if self._partner_died else "estimator"
+            self._events.on_exit(f"{name} process exited (code {dead.exitcode})")
 
     async def close(self, timeout: float = 30.0) -> None:
         """Let the message in progress finish, end the stream, then stop the process."""

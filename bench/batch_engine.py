@@ -30,14 +30,17 @@ from evp.batch.runner import run_batch
 from evp.experiments import seed002_spoofing
 
 SPEEDUP_COLUMNS = [
+    ("cores", "{cores}"),
     ("executor", "{executor}"),
     ("workers", "{workers}"),
     ("jobs", "{jobs}"),
+    ("seeds a job", "{seeds}"),
     ("wall s", "{wall_s:.1f}"),
     ("speed-up vs 1 worker", "{speedup:.2f}x"),
     ("load average (1 min) at start", "{load:.1f}"),
 ]
 OVERHEAD_COLUMNS = [
+    ("cores", "{cores}"),
     ("executor", "{executor}"),
     ("empty jobs", "{jobs}"),
     ("wall s", "{wall_s:.2f}"),
@@ -78,13 +81,14 @@ def main() -> None:
     parser.add_argument("--empty-jobs", type=int, default=40)
     args = parser.parse_args()
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core a worker: the workers are the parallelism
+    cores = os.cpu_count()
     results = Results("batch_engine", "python bench/batch_engine.py " + " ".join(sys.argv[1:]))
     work = [Job(j.key, j.task, {**j.params, "seeds": args.seeds}) for j in seed002_spoofing.jobs(None, quick=True)]
     speedup = results.table(
         "speedup",
         SPEEDUP_COLUMNS,
-        key=["executor", "workers"],
-        caption=f"seed002-spoofing's {len(work)} jobs ({args.seeds} seed each) on N workers; {os.cpu_count()} cores",
+        key=["cores", "executor", "workers", "seeds"],
+        caption="seed002-spoofing's jobs on N workers, on machines of 2 and more cores",
     )
     print(speedup.header(), flush=True)
     single: dict[str, float] = {}
@@ -94,15 +98,30 @@ def main() -> None:
             wall = timed_batch(work, executor)
             single.setdefault(name, wall)
             print(
-                speedup.add({"executor": name, "workers": workers, "jobs": len(work), "wall_s": wall, "speedup": single[name] / wall, "load": load}), flush=True
+                speedup.add(
+                    {
+                        "cores": cores,
+                        "seeds": args.seeds,
+                        "executor": name,
+                        "workers": workers,
+                        "jobs": len(work),
+                        "wall_s": wall,
+                        "speedup": single[name] / wall,
+                        "load": load,
+                    }
+                ),
+                flush=True,
             )
-    overhead = results.table("overhead", OVERHEAD_COLUMNS, key=["executor"], caption="jobs that return at once, 1 worker: the engine's cost per job")
+    overhead = results.table("overhead", OVERHEAD_COLUMNS, key=["cores", "executor"], caption="jobs that return at once, 1 worker: the engine's cost per job")
     print(overhead.header(), flush=True)
     empty = [Job(f"empty{i}", "batch_engine:nothing") for i in range(args.empty_jobs)]
     for name, executor in executors(1):
         load = os.getloadavg()[0]
         wall = timed_batch(empty, executor)
-        print(overhead.add({"executor": name, "jobs": len(empty), "wall_s": wall, "per_job_ms": 1000 * wall / len(empty), "load": load}), flush=True)
+        print(
+            overhead.add({"cores": cores, "executor": name, "jobs": len(empty), "wall_s": wall, "per_job_ms": 1000 * wall / len(empty), "load": load}),
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

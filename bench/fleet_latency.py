@@ -35,6 +35,7 @@ from results import Results  # noqa: E402
 from tests.station.conftest import running_station  # noqa: E402
 
 COLUMNS = [
+    ("cores", "{cores}"),
     ("streams", "{streams}"),
     ("estimators", "{placement}"),
     ("answered", "{answered_percent:.1f} %"),
@@ -49,7 +50,7 @@ def _render(folder: Path, duration: float) -> Path:
     from evp.sim.generate import generate
     from evp.sim.scenarios import SimOptions
 
-    generate("drone-flight", SimOptions(duration_s=duration, fps=30.0, seed=0), folder, workers=2)
+    generate("drone-flight", SimOptions(duration_s=duration, fps=30.0, seed=0), folder, workers=os.cpu_count() or 1)
     return folder
 
 
@@ -101,7 +102,7 @@ def main() -> None:
     table = Results("fleet_latency", command).table(
         "placement",
         COLUMNS,
-        key=["streams", "placement"],
+        key=["cores", "streams", "placement"],
         caption="evp stream --realtime to evp serve over loopback (TLS, JPEG), 30 fps 640x380; station, cluster and clients share the machine",
     )
     print(table.header())
@@ -111,10 +112,10 @@ def main() -> None:
         with LocalCluster(n_workers=max(args.streams), threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
             for streams in args.streams:
                 local = _stream_all(work, f"local{streams}", source, {"estimator": "slam"}, streams)
-                print(table.add({"streams": streams, "placement": "on the station", **local}), flush=True)
+                print(table.add({"cores": os.cpu_count(), "streams": streams, "placement": "on the station", **local}), flush=True)
                 placed = _stream_all(work, f"cluster{streams}", source, {"estimator": "slam", "station": {"cluster": cluster.scheduler_address}}, streams)
                 placed["added_p95_ms"] = placed["latency_ms_p95"] - local["latency_ms_p95"]
-                print(table.add({"streams": streams, "placement": "on the cluster (Dask actor)", **placed}), flush=True)
+                print(table.add({"cores": os.cpu_count(), "streams": streams, "placement": "on the cluster (Dask actor)", **placed}), flush=True)
 
 
 if __name__ == "__main__":

@@ -453,7 +453,6 @@ class AutopilotSettings(_Section):
     frame_timeout_s: float = Field(0.5, gt=0, description="no frame for this long: hold (level, no push); frames still missing after land_after_s: land")
     land_after_s: float = Field(3.0, gt=0, description="frames missing this long: land where it is")
     range_timeout_s: float = Field(0.3, gt=0, description="no valid range reading for this long: hold height from the marker poses' height, logged")
-    hover_time_s: float = Field(0.0, ge=0, description="hover mission: hold over the map's centre this long, then land (0: explore)")
     vehicles: list[str] = Field(
         default_factory=list,
         description="evp serve: the mobile stations (their hello.device) that fly marker missions: their frames and range telemetry drive this autopilot, its velocity set-points go to their MAVLink endpoint (mavlink.vehicles, else --mavlink)",

@@ -12,13 +12,14 @@ import shutil
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
-from evp.mobile.client import StreamClient, StreamError, StreamReport, mobile_url
+from evp.mobile.client import IMU_BATCH_SPAN_S, StreamClient, StreamError, StreamReport, mobile_url
 from evp.mobile.pairing import device_credential
-from evp.mobile.sources import open_source
-from evp.station.protocol import Pose
-from evp.types import TrackingState
+from evp.mobile.sources import StreamSource, open_source
+from evp.station.protocol import Pose, decode_image, decode_text
+from evp.types import CameraModel, Frame, ImuSample, TrackingState
 from tests.conftest import SAMPLE
 from tests.station.conftest import OperatorFeed, http_json, operator_credential, running_station
 
@@ -175,3 +176,40 @@ def test_evp_stream_exits_non_zero_when_frames_are_refused(station, tmp_path):
     summary = json.loads(result.stdout.strip().splitlines()[-1])
     assert summary["frames_refused"] == 3 and summary["poses_received"] == 0
     assert all(error.startswith("bad_timestamp") and "milliseconds" in error for error in summary["first_errors"])
+
+
+class _Sent:
+    """A connection that keeps what is sent: text messages decoded, frames as their seq."""
+
+    def __init__(self):
+        self.messages: list = []
+
+    async def send(self, data) -> None:
+        self.messages.append(decode_text(data) if isinstance(data, str) else ("frame", decode_image(data).seq))
+
+
+def test_imu_samples_go_together_before_the_frame_that_follows_them():
+    """A 200 Hz IMU sent a message a sample was most of the station's event loop: the samples go
+    as one imu_batch a frame period, each before the frame after it, and none waits longer than
+    IMU_BATCH_SPAN_S (and a sample) when no frame comes."""
+    imu = [ImuSample(0.005 * k, (0.0, 0.0, 0.1), (0.0, 0.0, 9.8)) for k in range(60)]  # 0 to 0.295 s
+    frames = [Frame(t, np.zeros((8, 8), np.uint8)) for t in (0.0125, 0.0458)]  # then no frame after 0.05 s
+    items = sorted([*imu, *frames], key=lambda item: item.timestamp)
+    source = StreamSource("test", CameraModel(8, 8, 10.0, 10.0, 4.0, 4.0), 30.0, iter(items), live=False, lossless=True, skipped=[])
+    client, sent = StreamClient("ws://127.0.0.1:1", log=lambda text: None), _Sent()
+
+    async def run() -> None:
+        receiver = asyncio.create_task(asyncio.sleep(60))
+        await client._send_items(sent, source, realtime=False, encoding="png", jpeg_quality=90, max_in_flight=10, receiver=receiver)
+        receiver.cancel()
+
+    asyncio.run(run())
+    kinds = [m if isinstance(m, tuple) else m.kind for m in sent.messages]
+    assert kinds[:4] == ["imu_batch", ("frame", 0), "imu_batch", ("frame", 1)]
+    batches = [m for m in sent.messages if not isinstance(m, tuple)]
+    rows = [row for batch in batches for row in batch.samples]
+    assert [row[0] for row in rows] == [s.timestamp for s in imu]  # every sample once, in order
+    assert all(row[0] < 0.0125 for row in batches[0].samples) and all(0.0125 <= row[0] < 0.0458 for row in batches[1].samples)
+    period = 0.005
+    assert all(batch.samples[-1][0] - batch.samples[0][0] <= IMU_BATCH_SPAN_S + period + 1e-9 for batch in batches)
+    assert client.report.telemetry_sent == len(imu) and client.report.frames_sent == 2

@@ -5,6 +5,7 @@ station loses nothing it recorded."""
 from __future__ import annotations
 
 import asyncio
+import json
 import signal
 import time
 import urllib.error
@@ -270,6 +271,11 @@ def test_bad_telemetry_gets_specific_events_and_the_session_and_recording_go_on(
         assert error.code == "malformed" and "NaN" in error.message
         await connection.send(imu.format(t=0.6, a=9.8))  # 0.41 s after the last: an irregular IMU
         await connection.send(imu.format(t=100.0, a=9.8))  # its clock jumps
+        rows = [[100.0 + 0.01 * k, 0, 0, 0, 0, 0, 9.8] for k in (1, 2, 3)]  # then samples sent together
+        await connection.send(json.dumps({"type": "telemetry", "kind": "imu_batch", "timestamp": rows[-1][0], "samples": rows}))
+        await connection.send(json.dumps({"type": "telemetry", "kind": "imu_batch", "timestamp": rows[-1][0], "samples": rows[1:]}))
+        error, _ = await _until(connection, "error")
+        assert error.code == "out_of_order"  # a batch starting before the IMU's last sample, single or batched
         await connection.send('{"type": "telemetry", "kind": "gps", "timestamp": 100.0, "latitude_deg": null, "longitude_deg": null}')
         await connection.send(encode_image(images[0].image, 0, images[0].timestamp, "png").pack())
         pose, _ = await _until(connection, "pose")  # the session went on
@@ -288,9 +294,9 @@ def test_bad_telemetry_gets_specific_events_and_the_session_and_recording_go_on(
         logged = [e["code"] for e in store.rows("events", session_id)]
         assert {"malformed", "imu_gap", "clock_jump", "gps_no_lock"} <= set(logged)
         kinds = [r["kind"] for r in store.rows("telemetry", session_id)]
-        assert kinds.count("imu") == 22 and kinds.count("gps") == 1  # everything that parsed is recorded
+        assert kinds.count("imu") == 22 and kinds.count("imu_batch") == 1 and kinds.count("gps") == 1  # everything that parsed is recorded
         session = store.session(session_id)
     finally:
         store.close()
     topics = [topic for topic, _, _ in indexed_messages(session["mcap_path"])]
-    assert topics.count("/imu") == 22 and topics.count("/gps/fix") == 1
+    assert topics.count("/imu") == 25 and topics.count("/gps/fix") == 1  # a batch's samples each on /imu

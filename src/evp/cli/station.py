@@ -4,6 +4,7 @@ recorded session re-run offline."""
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import typer
@@ -67,29 +68,34 @@ def pairing_code(
         store.close()
 
 
-def run_stream(
-    source_spec,
-    url,
-    realtime,
-    encoding,
-    jpeg_quality,
-    camera,
-    max_frames,
-    credential,
-    resume,
-    cafile,
-    fingerprint,
-    insecure,
-    out,
-    quiet,
-    echo,
-    device="evp-stream",
-    robot=None,
-) -> dict:
+@dataclass(frozen=True)
+class StreamRequest:
+    """What ``evp stream`` was asked for: the source and how to send it, the station and how to
+    trust it, and where the answers go. ``robot`` (RobotSettings): the wheel records go as that
+    robot's encoder counts."""
+
+    source: str
+    url: str
+    realtime: bool = False
+    encoding: str = "auto"
+    jpeg_quality: int = 90
+    camera: str | None = None
+    max_frames: int | None = None
+    credential: str = ""
+    resume: str | None = None
+    cafile: str | None = None
+    fingerprint: str | None = None
+    insecure: bool = False
+    out: Path | None = None
+    quiet: bool = False
+    device: str = "evp-stream"
+    robot: object | None = None
+
+
+def run_stream(request: StreamRequest, echo) -> dict:
     """Stream a source to a station; the poses received are echoed (unless quiet) and written to
-    ``out`` (poses.tum: the tracked ones; answers.jsonl: every answer with its fields and its
-    frame-sent to answer-received latency; summary.json) when given. ``robot`` (RobotSettings):
-    the wheel records go as that robot's encoder counts. Returns the summary."""
+    ``request.out`` (poses.tum: the tracked ones; answers.jsonl: every answer with its fields and
+    its frame-sent to answer-received latency; summary.json) when given. Returns the summary."""
     import asyncio
 
     from evp.io.trajectory import tum_text
@@ -97,22 +103,31 @@ def run_stream(
     from evp.mobile.sources import open_source
     from evp.station.replay import tracked_trajectory
 
-    if encoding not in ("auto", "jpeg", "png", "raw"):
-        raise UsageError(f"--encoding {encoding!r}: choose jpeg, png, raw or auto")
-    source = open_source(source_spec, camera, max_frames, encoder_robot=robot)
+    if request.encoding not in ("auto", "jpeg", "png", "raw"):
+        raise UsageError(f"--encoding {request.encoding!r}: choose jpeg, png, raw or auto")
+    source = open_source(request.source, request.camera, request.max_frames, encoder_robot=request.robot)
+    encoding = request.encoding
     if encoding == "auto":
         encoding = "png" if source.lossless else "jpeg"
 
     def show(pose) -> None:
-        if not quiet:
+        if not request.quiet:
             t = " ".join(f"{v:.4f}" for v in pose.t)
             echo(f"pose {pose.seq} t={pose.timestamp:.3f} {pose.state} xyz=({t}) quality={pose.quality}")
 
     client = StreamClient(
-        url, token=credential, device=device, cafile=cafile, fingerprint=fingerprint, insecure=insecure, on_pose=show, log=lambda text: echo(text, err=True)
+        request.url,
+        token=request.credential,
+        device=request.device,
+        cafile=request.cafile,
+        fingerprint=request.fingerprint,
+        insecure=request.insecure,
+        on_pose=show,
+        log=lambda text: echo(text, err=True),
     )
-    report = asyncio.run(client.run(source, realtime, encoding, jpeg_quality, resume))
+    report = asyncio.run(client.run(source, request.realtime, encoding, request.jpeg_quality, request.resume))
     summary = report.summary()
+    out = request.out
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         poses = [report.poses[k] for k in sorted(report.poses)]
@@ -165,25 +180,25 @@ def stream(
         from evp.config import load_settings
 
         robot = load_settings(config).robot
-    summary = run_stream(
+    request = StreamRequest(
         source,
         url,
-        realtime,
-        encoding,
-        jpeg_quality,
-        camera,
-        max_frames,
-        credential,
-        resume,
-        cafile,
-        fingerprint,
-        insecure,
-        out,
-        quiet,
-        typer.echo,
-        device,
-        robot,
+        realtime=realtime,
+        encoding=encoding,
+        jpeg_quality=jpeg_quality,
+        camera=camera,
+        max_frames=max_frames,
+        credential=credential,
+        resume=resume,
+        cafile=cafile,
+        fingerprint=fingerprint,
+        insecure=insecure,
+        out=out,
+        quiet=quiet,
+        device=device,
+        robot=robot,
     )
+    summary = run_stream(request, typer.echo)
     typer.echo(json.dumps(summary))
     if summary["poses_received"] and not summary["poses_tracked"]:
         typer.echo(f"warning: the station tracked none of the {summary['poses_received']} frames it answered: {NOT_INITIALISED_HINT}", err=True)

@@ -28,6 +28,7 @@ import numpy as np
 from evp.errors import LinkError
 from evp.mobile.sources import StreamSource, telemetry_message
 from evp.station.protocol import (
+    MAX_IMU_BATCH,
     PROTOCOL_VERSION,
     Bye,
     Config,
@@ -35,6 +36,7 @@ from evp.station.protocol import (
     Enable,
     Error,
     Hello,
+    ImuBatchTelemetry,
     Pose,
     ProtocolError,
     Status,
@@ -44,9 +46,13 @@ from evp.station.protocol import (
     encode,
     encode_image,
 )
-from evp.types import Frame, TrackingState
+from evp.types import Frame, ImuSample, TrackingState
 
 READY_TIMEOUT_S = 120.0
+# IMU samples go together, one imu_batch per frame period (they are sent before each frame) and
+# at most this long apart without frames: a message per 200-400 Hz sample was most of the
+# station's event loop (docs/decisions.md), and 50 ms is well inside the filter's buffered horizon.
+IMU_BATCH_SPAN_S = 0.05
 DRAIN_TIMEOUT_S = 60.0
 
 
@@ -216,6 +222,7 @@ class StreamClient:
     ) -> None:
         pace_start: float | None = None
         frame_index = 0
+        imu: list[ImuSample] = []  # samples waiting to go as one imu_batch (IMU_BATCH_SPAN_S)
         for item in source.items:
             if receiver.done():
                 receiver.result()  # re-raises the link failure
@@ -225,11 +232,18 @@ class StreamClient:
                     frame_index += 1
                     self.report.frames_skipped += 1
                 continue
+            if isinstance(item, ImuSample):
+                imu.append(item)
+                if item.timestamp - imu[0].timestamp < IMU_BATCH_SPAN_S and len(imu) < MAX_IMU_BATCH:
+                    continue
             if realtime and not source.live:
                 now = time.monotonic()
                 if pace_start is None:
                     pace_start = now - item.timestamp
                 await asyncio.sleep(max(0.0, pace_start + item.timestamp - now))
+            if imu:  # before what follows them in time: a frame's answer fuses the IMU up to it
+                await self._send_imu(connection, imu)
+                imu = []
             if isinstance(item, Frame):
                 while not realtime and len(self._in_flight) >= max_in_flight and not receiver.done():
                     self._answered.clear()
@@ -242,13 +256,20 @@ class StreamClient:
                 self.report.sent_at[message.seq] = time.monotonic()
                 await connection.send(message.pack())
                 self.report.frames_sent += 1
-            else:
+            elif not isinstance(item, ImuSample):
                 telemetry = telemetry_message(item)
                 if telemetry is not None:
                     await connection.send(encode(telemetry))
                     self.report.telemetry_sent += 1
+        if imu:
+            await self._send_imu(connection, imu)
         for problem in source.skipped:
             self.report.errors.append(f"source: {problem}")
+
+    async def _send_imu(self, connection, samples: list[ImuSample]) -> None:
+        rows = [[s.timestamp, *s.angular_velocity_rad_s, *s.linear_acceleration_m_s2] for s in samples]
+        await connection.send(encode(ImuBatchTelemetry(timestamp=samples[-1].timestamp, samples=rows)))
+        self.report.telemetry_sent += len(samples)
 
     async def _drain(self, receiver: asyncio.Task) -> None:
         deadline = time.monotonic() + DRAIN_TIMEOUT_S

@@ -173,6 +173,39 @@ class ImuTelemetry(_Message):
     accel_m_s2: Vector3
 
 
+# IMU samples per imu_batch message: 256 rows of 7 numbers stay well inside MAX_TEXT_BYTES, and
+# a second of a 200 Hz IMU fits (a batch is one frame period, 5-7 samples, when frames flow).
+MAX_IMU_BATCH = 256
+ImuRow = Annotated[list[Finite], Field(min_length=7, max_length=7)]
+
+
+class ImuBatchTelemetry(_Message):
+    """IMU samples sent together, oldest first, each row ``[t, gx, gy, gz, ax, ay, az]`` (s, rad/s,
+    m/s^2); ``timestamp`` is the last row's. A companion computer's 200-400 Hz IMU sent one sample
+    a message costs the station's event loop more than the frames do (the telemetry path was 75 % of
+    it in a profile of two streamed flights); one message a frame period costs a seventh of that.
+    The recording keeps every sample on /imu and this message verbatim."""
+
+    type: Literal["telemetry"] = "telemetry"
+    kind: Literal["imu_batch"] = "imu_batch"
+    timestamp: Timestamp
+    samples: list[ImuRow] = Field(min_length=1, max_length=MAX_IMU_BATCH)
+
+    @field_validator("samples")
+    @classmethod
+    def _times_in_order(cls, samples: list[list[float]], info) -> list[list[float]]:
+        times = [row[0] for row in samples]
+        for k, t in enumerate(times):
+            if not 0.0 <= t < MAX_TIMESTAMP_S:
+                raise ValueError(f"row {k}: time {t!r} s is outside [0, 2^31) (seconds are expected: milliseconds?)")
+        if any(later < earlier for earlier, later in zip(times, times[1:], strict=False)):
+            raise ValueError("rows are not in time order (oldest first)")
+        timestamp = info.data.get("timestamp")
+        if timestamp is not None and times[-1] != timestamp:
+            raise ValueError(f"the last row's time ({times[-1]!r}) is not the message's timestamp ({timestamp!r})")
+        return samples
+
+
 class GpsTelemetry(_Message):
     """A fix; latitude, longitude and altitude ``null`` (or absent) is a receiver without lock."""
 
@@ -233,6 +266,7 @@ class WifiTelemetry(_Message):
 
 TELEMETRY = {
     "imu": ImuTelemetry,
+    "imu_batch": ImuBatchTelemetry,
     "gps": GpsTelemetry,
     "baro": BaroTelemetry,
     "range": RangeTelemetry,
@@ -240,12 +274,22 @@ TELEMETRY = {
     "encoder": EncoderTelemetry,
     "wifi": WifiTelemetry,
 }
-Telemetry = ImuTelemetry | GpsTelemetry | BaroTelemetry | RangeTelemetry | WheelTelemetry | EncoderTelemetry | WifiTelemetry
+Telemetry = ImuTelemetry | ImuBatchTelemetry | GpsTelemetry | BaroTelemetry | RangeTelemetry | WheelTelemetry | EncoderTelemetry | WifiTelemetry
+
+
+def telemetry_records(message: Telemetry) -> list:
+    """The pipeline's records for a telemetry message (several for an IMU batch; absent optional
+    numbers become NaN, as the dataset readers give them); a GPS fix without lock has a NaN
+    position."""
+    from evp.types import ImuSample
+
+    if isinstance(message, ImuBatchTelemetry):
+        return [ImuSample(row[0], tuple(row[1:4]), tuple(row[4:7])) for row in message.samples]
+    return [telemetry_record(message)]
 
 
 def telemetry_record(message: Telemetry):
-    """The pipeline's record for a telemetry message (absent optional numbers become NaN, as the
-    dataset readers give them); a GPS fix without lock has a NaN position."""
+    """The pipeline's record for a single-sample telemetry message (see ``telemetry_records``)."""
     from evp.types import BaroSample, EncoderCounts, GpsFix, ImuSample, RangeSample, WheelOdometry, WifiScan
 
     def value(number: float | None) -> float:

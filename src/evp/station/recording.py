@@ -39,7 +39,17 @@ from evp.io.ros_messages import (
     gps_to_msg,
     imu_to_msg,
 )
-from evp.station.protocol import RAW_CHANNELS, BaroTelemetry, GpsTelemetry, ImageMessage, ImuTelemetry, Pose, telemetry_record
+from evp.station.protocol import (
+    RAW_CHANNELS,
+    BaroTelemetry,
+    GpsTelemetry,
+    ImageMessage,
+    ImuBatchTelemetry,
+    ImuTelemetry,
+    Pose,
+    telemetry_record,
+    telemetry_records,
+)
 from evp.types import CameraModel
 
 STRING = "std_msgs/msg/String"
@@ -104,13 +114,13 @@ class SessionRecording:
 
     def telemetry(self, message, raw_text: str, received_at: float) -> None:
         """Typed topic where ROS has a type; every telemetry message also verbatim on /evp/messages."""
-        record = telemetry_record(message)
-        if isinstance(message, ImuTelemetry):
-            self._recorder.write("/imu", IMU, imu_to_msg(ROS2, record), received_at)
+        if isinstance(message, ImuTelemetry | ImuBatchTelemetry):
+            for record in telemetry_records(message):  # a batch's samples each on /imu, as a dataset reader reads them
+                self._recorder.write("/imu", IMU, imu_to_msg(ROS2, record), received_at)
         elif isinstance(message, GpsTelemetry):
-            self._recorder.write("/gps/fix", NAVSAT, gps_to_msg(ROS2, record), received_at)
+            self._recorder.write("/gps/fix", NAVSAT, gps_to_msg(ROS2, telemetry_record(message)), received_at)
         elif isinstance(message, BaroTelemetry):
-            self._recorder.write("/baro", PRESSURE, baro_to_msg(ROS2, record), received_at)
+            self._recorder.write("/baro", PRESSURE, baro_to_msg(ROS2, telemetry_record(message)), received_at)
         self.text(raw_text, received_at)
 
     def text(self, raw_text: str, received_at: float) -> None:

@@ -33,6 +33,7 @@ from evp.station.protocol import (
     Error,
     GpsTelemetry,
     ImageMessage,
+    ImuBatchTelemetry,
     Log,
     Pose,
     ProtocolError,
@@ -44,7 +45,7 @@ from evp.station.protocol import (
     decode_image,
     decode_text,
     encode,
-    telemetry_record,
+    telemetry_records,
 )
 from evp.station.recording import SessionRecording
 from evp.station.robot_link import RobotLink
@@ -214,34 +215,37 @@ class LiveSession:
             raise ProtocolError("unknown_type", f"'{message.type}' is sent by the station, not to it")
 
     def _telemetry(self, message, text: str, now: float) -> None:
-        last = self._last_telemetry_time.get(message.kind, -np.inf)
-        if message.timestamp < last:
-            raise ProtocolError("out_of_order", f"{message.kind} telemetry at t={message.timestamp!r} is older than the last one (t={last!r})")
+        sensor = "imu" if isinstance(message, ImuBatchTelemetry) else message.kind  # one IMU, sent a sample or a batch at a time
+        first = message.samples[0][0] if isinstance(message, ImuBatchTelemetry) else message.timestamp
+        last = self._last_telemetry_time.get(sensor, -np.inf)
+        if first < last:
+            raise ProtocolError("out_of_order", f"{message.kind} telemetry at t={first!r} is older than the last one (t={last!r})")
         problem = self.station.storage_problem()
         if problem:
             raise ProtocolError("storage_full", f"{message.kind} telemetry not recorded: {problem}")
-        self._last_telemetry_time[message.kind] = message.timestamp
+        self._last_telemetry_time[sensor] = message.timestamp
         self.recording.telemetry(message, text, now)
         data = message.model_dump(exclude={"type", "kind", "timestamp"})
         self.store.insert("telemetry", session_id=self.id, kind=message.kind, timestamp=message.timestamp, received_at=now, data_json=json.dumps(data))
         jump = self.station.settings.station.max_clock_jump_s
-        if np.isfinite(last) and message.timestamp - last > jump:
+        if np.isfinite(last) and first - last > jump:
             self.event(
                 "warning",
                 "clock_jump",
-                f"{message.kind} telemetry jumped {message.timestamp - last:.1f} s ahead (more than {jump:g} s): the sensor's clock was reset?",
+                f"{message.kind} telemetry jumped {first - last:.1f} s ahead (more than {jump:g} s): the sensor's clock was reset?",
             )
         if isinstance(message, GpsTelemetry) and message.latitude_deg is not None:
             self.station.on_gps(self, message)  # the operator's plot: fused track against GPS
         if isinstance(message, RangeTelemetry) and self.mission is not None:
             self.mission.on_range(message.distance_m)
-        record = telemetry_record(message)
-        if isinstance(record, EncoderCounts):  # every reading, estimator or not: the next difference needs it
-            record, warnings = self.robot.wheel_record(record)
+        records = telemetry_records(message)
+        if isinstance(records[0], EncoderCounts):  # every reading, estimator or not: the next difference needs it
+            record, warnings = self.robot.wheel_record(records[0])
+            records = [record] if record is not None else []
             for text in warnings:
                 self.event("warning", "encoder", text)
-        if self.worker is not None and record is not None:  # the estimator fuses it (the navigation filter), whether estimating or not
-            self._telemetry_batch.append(record)
+        if self.worker is not None:  # the estimator fuses them (the navigation filter), whether estimating or not
+            self._telemetry_batch.extend(records)
 
     def drive(self, linear_m_s: float, angular_rad_s: float, now: float) -> Velocity:
         """Drive the robot: the command is recorded, sent now and repeated (:meth:`repeat_drive`)

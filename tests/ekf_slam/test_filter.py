@@ -43,6 +43,7 @@ def test_features_at_known_depths_converge():
     assert sum(not f.inverse_depth for f in flt.features) >= 6  # well-determined ones became Euclidean
     assert np.abs(run.poses[:, :2] - scene.poses[:, :2]).max() < 0.005
     assert not flt.warnings
+    assert np.array_equal(flt.P, flt.P.T)  # exactly symmetric by construction: no pass over P undoes rounding
 
 
 def test_a_known_loop_closes():
@@ -58,6 +59,7 @@ def test_a_known_loop_closes():
     assert abs(math.remainder(run.poses[-1, 2] - scene.poses[-1, 2], 2 * math.pi)) < 0.01
     assert abs(flt.x[3] - 0.01) < 0.002
     assert len(run.feature_of) == 24
+    assert np.array_equal(flt.P, flt.P.T)
 
 
 def test_bad_wheel_and_gyro_samples_are_named_and_bridged():

@@ -41,7 +41,7 @@ class PixelRays:
     def __init__(self, camera: CameraModel):
         self.camera = camera
         u, v = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
-        self._table = camera.undistort_points(np.column_stack([u.ravel(), v.ravel()])).reshape(camera.height, camera.width, 2)
+        self._table = camera.undistort_points(np.column_stack([u.ravel(), v.ravel()]))  # row by row
 
     def normalised(self, pixels: np.ndarray) -> np.ndarray:
         """(N, 2) normalised coordinates of (N, 2) pixels (off the whole pixels of the image: the
@@ -51,7 +51,7 @@ class PixelRays:
         columns, rows = pixels[:, 0].astype(int), pixels[:, 1].astype(int)
         whole = np.array_equal(columns, pixels[:, 0]) and np.array_equal(rows, pixels[:, 1])
         if whole and columns.min() >= 0 and rows.min() >= 0 and columns.max() < self.camera.width and rows.max() < self.camera.height:
-            return self._table[rows, columns]
+            return self._table[rows * self.camera.width + columns]
         return self.camera.undistort_points(pixels)
 
 

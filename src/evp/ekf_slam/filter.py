@@ -325,47 +325,59 @@ class EkfSlamFilter:
 
     def add_feature(self, z: np.ndarray, descriptor: np.ndarray, timestamp: float) -> MapFeature:
         """A new inverse-depth feature on the ray of normalised coordinates ``z`` from the camera now."""
+        return self.add_features(np.asarray(z, float)[None], [descriptor], timestamp)[0]
+
+    def add_features(self, zs: np.ndarray, descriptors: list[np.ndarray], timestamp: float) -> list[MapFeature]:
+        """New inverse-depth features on the rays of normalised coordinates ``zs`` (q, 2) from the
+        camera now, added together: P grows once, and their covariances with each other come from
+        the same product as with the rest (each depends on the robot pose and camera offset only)."""
         s = self.settings
         Rz = yaw_rotation(self.x[YAW])
         R_wc, centre = self.camera_pose()
-        direction = R_wc @ np.array([z[0], z[1], 1.0])
-        azimuth, elevation, d_angles = ray_angles(direction)
-        J_state = np.zeros((6, len(self.x)))  # d feature / d state
-        J_state[0:3, X] = [1.0, 0.0, 0.0]
-        J_state[0:3, Y] = [0.0, 1.0, 0.0]
-        J_state[0:3, YAW] = E_Z @ Rz @ self.x[OFFSET]
-        J_state[0:3, OFFSET] = Rz
-        J_state[3, YAW] = 1.0  # the ray turns with the robot about the vertical
-        J_noise = np.zeros((6, 3))  # d feature / d (z_x, z_y, rho)
-        J_noise[3:5, 0:2] = d_angles @ R_wc[:, :2]
-        J_noise[5, 2] = 1.0
+        q = len(zs)
+        J_used = np.zeros((q, 6, 6))  # d feature / d POSE_AND_OFFSET, the only states it depends on
+        J_used[:, 0:3, 0] = [1.0, 0.0, 0.0]
+        J_used[:, 0:3, 1] = [0.0, 1.0, 0.0]
+        J_used[:, 0:3, 2] = E_Z @ Rz @ self.x[OFFSET]
+        J_used[:, 0:3, 3:6] = Rz
+        J_used[:, 3, 2] = 1.0  # the ray turns with the robot about the vertical
         noise = np.diag([self.measurement_variance(), self.measurement_variance(), s.initial_inverse_depth_sigma**2])
-        used = POSE_AND_OFFSET  # the only states the new feature depends on
-        cross = J_state[:, used] @ self.P[used, :]
-        new_block = cross[:, used] @ J_state[:, used].T + J_noise @ noise @ J_noise.T
-        values = np.array([*centre, azimuth, elevation, s.initial_inverse_depth])
-        return self._append(values, cross, new_block, descriptor, timestamp)
+        values = np.empty((q, 6))
+        own = np.zeros((6 * q, 6 * q))  # the measurement's and the depth prior's share, feature by feature
+        for i, z in enumerate(zs):
+            azimuth, elevation, d_angles = ray_angles(R_wc @ np.array([z[0], z[1], 1.0]))
+            J_noise = np.zeros((6, 3))  # d feature / d (z_x, z_y, rho)
+            J_noise[3:5, 0:2] = d_angles @ R_wc[:, :2]
+            J_noise[5, 2] = 1.0
+            own[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] = J_noise @ noise @ J_noise.T
+            values[i] = [*centre, azimuth, elevation, s.initial_inverse_depth]
+        J = J_used.reshape(6 * q, 6)
+        cross = J @ self.P[POSE_AND_OFFSET, :]
+        new_block = cross[:, POSE_AND_OFFSET] @ J.T + own
+        return self._append(values.ravel(), cross, new_block, descriptors, timestamp)
 
     def add_feature_state(self, values: np.ndarray, covariance: np.ndarray, descriptor: np.ndarray, timestamp: float) -> MapFeature:
         """A feature given as its inverse-depth states (6,) and their covariance, independent of
         the rest (seed 001's experiment: features surveyed by hand, or guessed, at the start)."""
-        return self._append(values, np.zeros((6, len(self.x))), covariance, descriptor, timestamp)
+        return self._append(values, np.zeros((6, len(self.x))), covariance, [descriptor], timestamp)[0]
 
-    def _append(self, values: np.ndarray, cross: np.ndarray, covariance: np.ndarray, descriptor: np.ndarray, timestamp: float) -> MapFeature:
-        """An inverse-depth feature at the end of the state: its values, its covariance with the
-        state before it (6, n) and its own (6, 6)."""
-        n = len(self.x)
+    def _append(self, values: np.ndarray, cross: np.ndarray, covariance: np.ndarray, descriptors: list[np.ndarray], timestamp: float) -> list[MapFeature]:
+        """Inverse-depth features at the end of the state: their values (6q,), their covariance
+        with the state before them (6q, n) and their own (6q, 6q)."""
+        n, m = len(self.x), len(values)
         self.x = np.concatenate([self.x, values])
-        grown = np.empty((n + 6, n + 6))
+        grown = np.empty((n + m, n + m))
         grown[:n, :n] = self.P
         grown[n:, :n] = cross
         grown[:n, n:] = cross.T
         grown[n:, n:] = symmetric(covariance)
         self.P = grown
-        feature = MapFeature(self._next_id, n, INVERSE_DEPTH_SIZE, descriptor, descriptor, last_seen=timestamp)
-        self._next_id += 1
-        self.features.append(feature)
-        return feature
+        added = []
+        for k, descriptor in enumerate(descriptors):
+            added.append(MapFeature(self._next_id, n + INVERSE_DEPTH_SIZE * k, INVERSE_DEPTH_SIZE, descriptor, descriptor, last_seen=timestamp))
+            self._next_id += 1
+        self.features += added
+        return added
 
     def make_euclidean(self) -> int:
         """Inverse-depth features whose linearity index is below ``euclidean_linearity`` become

@@ -148,10 +148,10 @@ class WheelVisualSlam:
             room = s.max_features - len(flt.features)
         chosen = new_feature_corners(corners, avoid_px, s.new_feature_min_distance_px, min(wanted, room))
         described = describer.describe(np.array(chosen, dtype=int))
-        for i in chosen:
-            if i in described:
-                flt.add_feature(corners.normalised[i], described[i], timestamp)
-        return sum(1 for i in chosen if i in described)
+        usable = [i for i in chosen if i in described]
+        if usable:
+            flt.add_features(corners.normalised[usable], [described[i] for i in usable], timestamp)
+        return len(usable)
 
     def _make_room(self, count: int, timestamp: float) -> None:
         """A full state: the features not in view that were matched least well and longest ago

@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from evp.config import EkfSlamSettings
-from evp.ekf_slam.filter import EkfSlamFilter
+from evp.ekf_slam.filter import EkfSlamFilter, principal_submatrix
 from evp.ekf_slam.inverse_depth import euclidean, ray_angles, ray_direction
 from evp.ekf_slam.known_features import NO_DESCRIPTOR, run_known_features
 from evp.fusion.planar_motion import dead_reckoning
@@ -84,3 +84,9 @@ def test_inconsistent_innovations_raise_a_warning():
         predictions = flt.predict_features([feature])
         flt.update(k * 0.1, predictions, np.array([0]), predictions.z + [0.06 * (-1) ** k, 0.0])
     assert any("innovations inconsistent" in w for w in flt.warnings)
+
+
+def test_principal_submatrix_is_fancy_indexing():
+    P = np.arange(100.0).reshape(10, 10)
+    for keep in (np.arange(10), np.array([0, 1, 2, 6, 7, 9]), np.array([3]), np.array([4, 5, 8])):
+        np.testing.assert_array_equal(principal_submatrix(P, keep), P[np.ix_(keep, keep)])

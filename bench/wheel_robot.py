@@ -6,14 +6,19 @@ up to 100 features in the state, and the real-time ratio.
 
 Usage: python bench/wheel_robot.py [--out runs/wheel_robot] [--seeds 1 2 3] [--duration 60]
        [--fps 15] [--skip-rendered] [--skip-wheels] [--wifi] [--wifi-long SECONDS]
+       [--baseline-src DIR --baseline-label TEXT]
 
 Each seed is rendered by `evp sim wheel-robot-room` (640x380, 60 s: one loop of the room and a
 half, at 15 fps, the paper's phone camera rate) into --out (an existing render with the same
 options is reused) and run with `evp run --estimator ekf-slam` with BLAS held to one thread
-(OPENBLAS_NUM_THREADS=1: one core). A row per seed: SE3 ATE (RMSE, max), path, features in the
-state at most, features matched per frame (median), tracking ms per frame (median, p95), OpenCV's
-ORB (1000 features) on the same frames in the same run and the ratio, the real-time ratio
-(recorded seconds over processing seconds) and the filter's warnings (innovation consistency).
+(OPENBLAS_NUM_THREADS=1 and OpenCV's OPENCV_FOR_THREADS_NUM=1: one core). A row per seed: SE3
+ATE (RMSE, max), path, features in the state at most, features matched per frame (median),
+tracking ms per frame (median, p95), OpenCV's ORB (1000 features) on the same frames in the same
+run and the ratio, the same three as thread CPU time (the machine's load does not count in it),
+the real-time ratio (recorded seconds over processing seconds) and the filter's warnings
+(innovation consistency). --baseline-src DIR runs each seed first with the evp package of
+another checkout (DIR/src: the code before a change), its rows labelled ``baseline
+--baseline-label``, so before and after are timed in one run on the same machine.
 
 --wifi adds the WiFi table: each seed with and without the rendered WiFi scans fused
 (``wifi.radio_map``: the room's survey, wifi_radio_map.npz, written beside the render when it
@@ -57,6 +62,7 @@ from evp.io.registry import open_dataset
 
 ROBOT_COLUMNS = [
     ("seed", "{seed}"),
+    ("code", "{code}"),
     ("frames", "{frames}"),
     ("path (m)", "{path_m:.2f}"),
     ("SE3 ATE RMSE (m)", "{ate_se3_m:.4f}"),
@@ -67,6 +73,9 @@ ROBOT_COLUMNS = [
     ("p95", "{tracking_ms_p95:.1f}"),
     ("OpenCV ORB ms", "{orb_ms_median:.1f}"),
     ("ratio to ORB", "{orb_ratio:.2f}"),
+    ("CPU ms/frame", "{cpu_ms_median:.1f}"),
+    ("ORB CPU ms", "{orb_cpu_ms_median:.1f}"),
+    ("CPU ratio to ORB", "{orb_cpu_ratio:.2f}"),
     ("real-time ratio", "{realtime_ratio:.1f}x"),
     ("warnings", "{warnings}"),
 ]
@@ -79,7 +88,8 @@ WHEEL_COLUMNS = [
     ("max (m)", "{max_m:.2f}"),
     ("path length error", "{path_error_percent:+.2f} %"),
 ]
-ONE_CORE = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+ONE_CORE = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENCV_FOR_THREADS_NUM": "1"}
+THIS_CHECKOUT = "this checkout"
 
 
 def render(folder: Path, seed: int, duration: float, fps: float) -> None:
@@ -106,16 +116,18 @@ def render(folder: Path, seed: int, duration: float, fps: float) -> None:
     subprocess.run(command, check=True)
 
 
-def robot_record(seed: int, folder: Path, out: Path) -> dict:
-    subprocess.run(
-        [sys.executable, "-m", "evp.cli", "run", str(folder), "--estimator", "ekf-slam", "--out", str(out)], check=True, env={**os.environ, **ONE_CORE}
-    )
+def robot_record(seed: int, folder: Path, out: Path, code: str = THIS_CHECKOUT, src: Path | None = None) -> dict:
+    """``evp run --estimator ekf-slam`` on one seed's render, on one core; ``src``: the ``src``
+    folder of another checkout to run instead of this one (``code`` labels the row)."""
+    env = {**os.environ, **ONE_CORE, **({"PYTHONPATH": str(src)} if src is not None else {})}
+    subprocess.run([sys.executable, "-m", "evp.cli", "run", str(folder), "--estimator", "ekf-slam", "--out", str(out)], check=True, env=env)
     metrics = json.loads((out / "metrics.json").read_text())
     timing = json.loads((out / "timing.json").read_text())
     section = metrics["ekf_slam"]
     times = np.loadtxt(out / "trajectory.tum", usecols=0)
     return {
         "seed": seed,
+        "code": code,
         "frames": metrics["frames"],
         "path_m": metrics["reference_path_length_m"],
         "ate_se3_m": metrics["rmse"],
@@ -126,6 +138,9 @@ def robot_record(seed: int, folder: Path, out: Path) -> dict:
         "tracking_ms_p95": timing["tracking_ms_p95"],
         "orb_ms_median": timing["opencv_orb_ms_median"],
         "orb_ratio": timing["tracking_to_orb_ratio"],
+        "cpu_ms_median": timing.get("feed_cpu_ms_median"),
+        "orb_cpu_ms_median": timing.get("opencv_orb_cpu_ms_median"),
+        "orb_cpu_ratio": timing.get("feed_to_orb_cpu_ratio"),
         "realtime_ratio": (times[-1] - times[0]) / (sum(timing["tracking_ms"]) / 1000.0),
         "warnings": section["warnings_count"],
     }
@@ -342,14 +357,19 @@ def main() -> None:
     parser.add_argument("--degraded-scale", type=float, default=1.05, help="the degraded wheels' speed factor")
     parser.add_argument("--degraded-gyro", type=float, default=0.02, help="the degraded gyro's offset (rad/s)")
     parser.add_argument("--start-error", type=float, default=1.0, help="the unknown start's position error (m)")
+    parser.add_argument("--baseline-src", type=Path, help="also run each seed, first, with the evp package of this checkout's src (before a change)")
+    parser.add_argument("--baseline-label", default="", help="what the baseline is (its commit), after 'baseline' in the code column")
     parser.add_argument("--wifi-long", type=float, default=0.0, help="add the long WiFi table: the wheels alone over this many seconds (no rendering)")
     args = parser.parse_args()
     results = Results("wheel_robot", "python bench/wheel_robot.py " + " ".join(sys.argv[1:]))
     if not args.skip_rendered:
-        table = results.table("robot", ROBOT_COLUMNS, ["seed"], "EKF-SLAM on the rendered wheel-robot room (640x380, one core)")
+        table = results.table("robot", ROBOT_COLUMNS, ["seed", "code"], "EKF-SLAM on the rendered wheel-robot room (640x380, one core)")
         for seed in args.seeds:
             folder = args.out / f"robot_seed{seed}"
             render(folder, seed, args.duration, args.fps)
+            if args.baseline_src is not None:
+                label = f"baseline {args.baseline_label}".strip()
+                print(table.add(robot_record(seed, folder, args.out / f"baseline_seed{seed}", label, (args.baseline_src / "src").resolve())), flush=True)
             print(table.add(robot_record(seed, folder, args.out / f"run_seed{seed}")), flush=True)
     if args.wifi:
         table = results.table(

@@ -131,6 +131,7 @@ def test_pipeline_order_is_feed_stages_sinks_settle_then_finish():
     assert estimator.calls == ["feed 0", "sink 0 x=0", "settle", "feed 1", "sink 1 x=0.5", "settle", "finish", "sink finish"]
     assert [e.T_world_cam[2, 3] for e in result.estimates] == [1.0, 1.0]  # sinks see the stages' output
     assert len(result.tracking_ms) == 2
+    assert len(result.feed_cpu_ms) == 2 and min(result.feed_cpu_ms) >= 0.0  # the feed's thread CPU time, per frame
 
 
 class _Watch(Stage):

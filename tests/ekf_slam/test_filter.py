@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from evp.config import EkfSlamSettings
-from evp.ekf_slam.filter import EkfSlamFilter
+from evp.ekf_slam.filter import EkfSlamFilter, principal_submatrix
 from evp.ekf_slam.inverse_depth import euclidean, ray_angles, ray_direction
 from evp.ekf_slam.known_features import NO_DESCRIPTOR, run_known_features
 from evp.fusion.planar_motion import dead_reckoning
@@ -43,6 +43,7 @@ def test_features_at_known_depths_converge():
     assert sum(not f.inverse_depth for f in flt.features) >= 6  # well-determined ones became Euclidean
     assert np.abs(run.poses[:, :2] - scene.poses[:, :2]).max() < 0.005
     assert not flt.warnings
+    assert np.array_equal(flt.P, flt.P.T)  # exactly symmetric by construction: no pass over P undoes rounding
 
 
 def test_a_known_loop_closes():
@@ -58,6 +59,7 @@ def test_a_known_loop_closes():
     assert abs(math.remainder(run.poses[-1, 2] - scene.poses[-1, 2], 2 * math.pi)) < 0.01
     assert abs(flt.x[3] - 0.01) < 0.002
     assert len(run.feature_of) == 24
+    assert np.array_equal(flt.P, flt.P.T)
 
 
 def test_bad_wheel_and_gyro_samples_are_named_and_bridged():
@@ -82,3 +84,9 @@ def test_inconsistent_innovations_raise_a_warning():
         predictions = flt.predict_features([feature])
         flt.update(k * 0.1, predictions, np.array([0]), predictions.z + [0.06 * (-1) ** k, 0.0])
     assert any("innovations inconsistent" in w for w in flt.warnings)
+
+
+def test_principal_submatrix_is_fancy_indexing():
+    P = np.arange(100.0).reshape(10, 10)
+    for keep in (np.arange(10), np.array([0, 1, 2, 6, 7, 9]), np.array([3]), np.array([4, 5, 8])):
+        np.testing.assert_array_equal(principal_submatrix(P, keep), P[np.ix_(keep, keep)])

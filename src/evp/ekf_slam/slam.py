@@ -10,7 +10,7 @@ import numpy as np
 
 from evp.config import EkfSlamSettings
 from evp.ekf_slam.filter import EkfSlamFilter, MapFeature, chi2_quantile
-from evp.ekf_slam.tracking import Describer, detect_corners, new_feature_corners, search
+from evp.ekf_slam.tracking import Describer, PixelRays, detect_corners, new_feature_corners, search
 from evp.types import CameraModel
 
 
@@ -34,6 +34,7 @@ class WheelVisualSlam:
     def __init__(self, camera: CameraModel, T_body_cam: np.ndarray, settings: EkfSlamSettings):
         self.camera = camera
         self.settings = settings
+        self.rays = PixelRays(camera)
         self.filter = EkfSlamFilter(T_body_cam[:3, :3], T_body_cam[:3, 3].astype(float), settings, 0.5 * (camera.fx + camera.fy))
 
     def wheels(self, timestamp: float, speed_m_s: float, yaw_rate_rad_s: float) -> None:
@@ -42,7 +43,7 @@ class WheelVisualSlam:
     def image(self, timestamp: float, grey: np.ndarray) -> FrameReport:
         s, flt = self.settings, self.filter
         flt.extrapolate(timestamp)
-        corners = detect_corners(grey, self.camera, s.fast_threshold)
+        corners = detect_corners(grey, self.rays, s.fast_threshold)
         describer = Describer(grey, corners)
         visible, pixels = self._in_image()
         matched = used = 0
@@ -67,8 +68,8 @@ class WheelVisualSlam:
                     feature.matches += 1
                     feature.last_seen = timestamp
             # the most uncertain predictions first: they teach the filter most (MonoSLAM)
-            matches.sort(key=lambda m: -np.trace(predictions.innovation_covariance[m[0]]))
-            matches = matches[: s.max_updates_per_frame]
+            spread = np.trace(predictions.innovation_covariance, axis1=1, axis2=2)
+            matches = [matches[i] for i in np.argsort([-spread[row] for row, _ in matches], kind="stable")[: s.max_updates_per_frame]]
             used = len(matches)
             if matches:
                 nis = self._fuse(timestamp, visible, predictions, covariance, matches, corners)
@@ -147,10 +148,10 @@ class WheelVisualSlam:
             room = s.max_features - len(flt.features)
         chosen = new_feature_corners(corners, avoid_px, s.new_feature_min_distance_px, min(wanted, room))
         described = describer.describe(np.array(chosen, dtype=int))
-        for i in chosen:
-            if i in described:
-                flt.add_feature(corners.normalised[i], described[i], timestamp)
-        return sum(1 for i in chosen if i in described)
+        usable = [i for i in chosen if i in described]
+        if usable:
+            flt.add_features(corners.normalised[usable], [described[i] for i in usable], timestamp)
+        return len(usable)
 
     def _make_room(self, count: int, timestamp: float) -> None:
         """A full state: the features not in view that were matched least well and longest ago

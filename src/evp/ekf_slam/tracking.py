@@ -32,13 +32,35 @@ class Corners:
         return np.array([k.response for k in self.keypoints], dtype=float)
 
 
-def detect_corners(grey: np.ndarray, camera: CameraModel, threshold: int) -> Corners:
+class PixelRays:
+    """The undistorted normalised coordinates of every whole pixel of a camera's image, computed
+    once: FAST corners lie on whole pixels, so a frame's corners are looked up instead of each
+    inverted through the lens model by Newton's method (2 ms of a frame's ~1700 corners at
+    640x380; the table is the same inversion, 0.2 s once, 4 MB)."""
+
+    def __init__(self, camera: CameraModel):
+        self.camera = camera
+        u, v = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
+        self._table = camera.undistort_points(np.column_stack([u.ravel(), v.ravel()]))  # row by row
+
+    def normalised(self, pixels: np.ndarray) -> np.ndarray:
+        """(N, 2) normalised coordinates of (N, 2) pixels (off the whole pixels of the image: the
+        lens model's own inversion)."""
+        if len(pixels) == 0:
+            return np.zeros((0, 2))
+        columns, rows = pixels[:, 0].astype(int), pixels[:, 1].astype(int)
+        whole = np.array_equal(columns, pixels[:, 0]) and np.array_equal(rows, pixels[:, 1])
+        if whole and columns.min() >= 0 and rows.min() >= 0 and columns.max() < self.camera.width and rows.max() < self.camera.height:
+            return self._table[rows * self.camera.width + columns]
+        return self.camera.undistort_points(pixels)
+
+
+def detect_corners(grey: np.ndarray, rays: PixelRays, threshold: int) -> Corners:
     mask = np.zeros(grey.shape, dtype=np.uint8)
     mask[ORB_PATCH_BORDER_PX:-ORB_PATCH_BORDER_PX, ORB_PATCH_BORDER_PX:-ORB_PATCH_BORDER_PX] = 255
     keypoints = cv2.FastFeatureDetector_create(threshold).detect(grey, mask)
     pixels = cv2.KeyPoint_convert(keypoints).astype(float).reshape(-1, 2)
-    normalised = camera.undistort_points(pixels) if len(pixels) else np.zeros((0, 2))
-    return Corners(pixels, normalised, keypoints)
+    return Corners(pixels, rays.normalised(pixels), keypoints)
 
 
 class Describer:
@@ -65,9 +87,9 @@ class Describer:
         return {int(i): self._known[int(i)] for i in indices if self._known[int(i)] is not None}
 
 
-def hamming(descriptors: np.ndarray, descriptor: np.ndarray) -> np.ndarray:
-    """(N,) bit distances of (N, 32) descriptors to one."""
-    return POPCOUNT[np.bitwise_xor(descriptors, descriptor)].sum(axis=1).astype(int)
+def hamming(descriptors: np.ndarray, others: np.ndarray) -> np.ndarray:
+    """(N,) bit distances of (N, 32) descriptors to one (32,) or to their partners (N, 32)."""
+    return POPCOUNT[np.bitwise_xor(descriptors, others)].sum(axis=1).astype(int)
 
 
 def search(
@@ -87,24 +109,31 @@ def search(
         return []
     gate = chi2_quantile(gate_probability, 2)
     inverse = np.linalg.inv(covariance)
-    offsets = corners.normalised[None] - predicted[:, None]  # (m, N, 2)
-    inside = np.einsum("mna,mab,mnb->mn", offsets, inverse, offsets) <= gate
+    dx = corners.normalised[None, :, 0] - predicted[:, 0, None]  # (m, N)
+    dy = corners.normalised[None, :, 1] - predicted[:, 1, None]
+    inside = inverse[:, 0, 0, None] * dx * dx + (inverse[:, 0, 1, None] + inverse[:, 1, 0, None]) * dx * dy + inverse[:, 1, 1, None] * dy * dy <= gate
     described = describer.describe(np.flatnonzero(inside.any(axis=0)))
-    best: dict[int, tuple[int, int]] = {}  # corner -> (distance, feature row)
-    for row in range(len(predicted)):
-        indices = np.array([i for i in np.flatnonzero(inside[row]) if i in described], dtype=int)
-        if len(indices) == 0:
-            continue
-        stack = np.array([described[i] for i in indices])
-        first, latest = descriptors[row]
-        distance = np.minimum(hamming(stack, first), hamming(stack, latest))
-        j = int(np.argmin(distance))
-        if distance[j] > max_hamming:
-            continue
-        corner = int(indices[j])
-        if corner not in best or distance[j] < best[corner][0]:
-            best[corner] = (int(distance[j]), row)
-    return sorted((row, corner) for corner, (_, row) in best.items())
+    if not described:
+        return []
+    known = np.zeros(len(corners.normalised), dtype=bool)
+    known[list(described)] = True
+    rows, indices = np.nonzero(inside & known)  # candidate pairs, row by row, corners ascending
+    if len(rows) == 0:
+        return []
+    stack = np.array([described[int(i)] for i in indices])
+    first = np.array([d[0] for d in descriptors])[rows]
+    latest = np.array([d[1] for d in descriptors])[rows]
+    distance = np.minimum(hamming(stack, first), hamming(stack, latest))
+    # each row's nearest corner (the lowest corner index of equals), then each corner's nearest
+    # row (the lowest row of equals)
+    order = np.lexsort((indices, distance, rows))
+    best = order[np.r_[True, rows[order][1:] != rows[order][:-1]]]
+    best = best[distance[best] <= max_hamming]
+    if len(best) == 0:
+        return []
+    order = best[np.lexsort((rows[best], distance[best], indices[best]))]
+    kept = order[np.r_[True, indices[order][1:] != indices[order][:-1]]]
+    return sorted(zip(rows[kept].tolist(), indices[kept].tolist()))
 
 
 def new_feature_corners(corners: Corners, avoid_px: np.ndarray, min_distance_px: float, count: int) -> list[int]:

@@ -30,7 +30,9 @@ def _stats(values: list[float]) -> dict:
 def run_timing(result: RunResult) -> dict:
     """timing.json: the estimator's tracking time per frame (its own figure when it times tracking
     apart from background work, as SLAM does without its inline mapping; else the pipeline's),
-    medians, OpenCV ORB's time on the same frames and the ratio, and the estimator's own figures."""
+    medians, OpenCV ORB's time on the same frames and the ratio, the thread CPU time of the
+    estimator's feed per frame and of the ORB (``feed_cpu_ms``, ``opencv_orb_cpu_ms``: less
+    sensitive to a loaded machine than the wall clock) and the estimator's own figures."""
     own = result.estimator.timing()
     tracking = own.get("tracking_ms", result.tracking_ms)
     tracking_stats = _stats(tracking)
@@ -39,6 +41,12 @@ def run_timing(result: RunResult) -> dict:
         timing["opencv_orb_ms"] = result.reference_orb_ms
         timing["opencv_orb_ms_median"] = _stats(result.reference_orb_ms)["median"]
         timing["tracking_to_orb_ratio"] = timing["tracking_ms_median"] / max(timing["opencv_orb_ms_median"], 1e-9)
+    if result.feed_cpu_ms:
+        timing["feed_cpu_ms"] = result.feed_cpu_ms
+        timing["feed_cpu_ms_median"] = _stats(result.feed_cpu_ms)["median"]
+        if result.reference_orb_cpu_ms:
+            timing["opencv_orb_cpu_ms_median"] = _stats(result.reference_orb_cpu_ms)["median"]
+            timing["feed_to_orb_cpu_ratio"] = timing["feed_cpu_ms_median"] / max(timing["opencv_orb_cpu_ms_median"], 1e-9)
     for name, value in own.items():
         if name == "tracking_ms":
             continue

@@ -1,5 +1,5 @@
 """The photo survey's lens self-calibration: adjustments needed, time, lens found and positions
-against GPS, for EVP's search and a baseline implementation of ``adjust_survey`` (another
+against GPS, for EVP's adjustment and a baseline implementation of ``adjust_survey`` (another
 version of ``evp/vo/survey_adjustment.py``, e.g. main's), on the same inputs in one run.
 
 The inputs (the nominal EXIF camera, the mosaic's poses, the matched tracks) come from running

@@ -9,7 +9,9 @@ from scipy.spatial.transform import Rotation
 
 from evp.geometry.alignment import umeyama
 from evp.geometry.transforms import se3
+from evp.optim.self_calibration import self_calibrating_adjust
 from evp.types import CameraModel
+from evp.vo import survey_adjustment
 from evp.vo.survey_adjustment import adjust_survey, tracks_from_matches
 
 NOMINAL = CameraModel(width=1200, height=900, fx=700.0, fy=700.0, cx=599.5, cy=449.5, name="exif_nominal")
@@ -30,16 +32,18 @@ def _survey(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     return points, np.array(poses)
 
 
-def _observe(points: np.ndarray, poses: np.ndarray, rng: np.random.Generator) -> tuple[list[np.ndarray], list[tuple[int, int, np.ndarray]]]:
-    """Each photo's keypoints (0.3 px noise) and the matches between every pair sharing points."""
-    lens = replace(NOMINAL, k1=TRUE_K1)
+def _observe(
+    points: np.ndarray, poses: np.ndarray, rng: np.random.Generator, lens: CameraModel = replace(NOMINAL, k1=TRUE_K1), noise_px: float = 0.3
+) -> tuple[list[np.ndarray], list[tuple[int, int, np.ndarray]]]:
+    """Each photo's keypoints through ``lens`` (with ``noise_px`` of noise) and the matches between
+    every pair sharing points."""
     seen_ids, keypoints = [], []
     for pose in poses:
         camera_points = (points - pose[:3, 3]) @ pose[:3, :3]
         pixels = lens.project(camera_points)
         inside = (pixels[:, 0] > 0) & (pixels[:, 0] < 1199) & (pixels[:, 1] > 0) & (pixels[:, 1] < 899)
         seen_ids.append(np.flatnonzero(inside))
-        keypoints.append(pixels[inside] + rng.normal(0, 0.3, (inside.sum(), 2)))
+        keypoints.append(pixels[inside] + rng.normal(0, noise_px, (inside.sum(), 2)))
     matches = []
     for i in range(len(poses)):
         for j in range(i):
@@ -81,8 +85,27 @@ def test_self_calibrates_the_lens_and_recovers_poses_from_rough_mosaic_poses(see
     alignment = umeyama(adjusted[:, :3, 3], truth[:, :3, 3], with_scale=True)
     errors = np.linalg.norm(alignment.apply(adjusted[:, :3, 3]) - truth[:, :3, 3], axis=1)
     rough_errors = np.linalg.norm(umeyama(rough[:, :3, 3], truth[:, :3, 3], True).apply(rough[:, :3, 3]) - truth[:, :3, 3], axis=1)
-    # one pixel is 0.17 m on the ground; the focal length comes out within 1 % (seed 0: 705.8 px for 700), 0.22 m at worst
+    # one pixel is 0.17 m on the ground; the focal length comes out within 1 % (seed 0: 706.2 px for 700), 0.20 m at worst
     assert errors.max() < 0.25 < 2.0 < rough_errors.max()
+
+
+def test_a_lens_unlike_the_nominal_one_is_recovered_in_one_adjustment(monkeypatch):
+    """Exact photos through a lens 10 % longer than EXIF's, with barrel distortion: the focal length,
+    k1 and k2 come out of the one adjustment (no lens search around it), as exactly as the lens
+    priors let them over +-3 m of relief (their pull: 0.3 % of the focal length)."""
+    rng = np.random.default_rng(5)
+    points, truth = _survey(rng)
+    true_lens = replace(NOMINAL, fx=770.0, fy=770.0, k1=-0.08, k2=0.03)
+    keypoints, matches = _observe(points, truth, rng, true_lens, noise_px=0.0)
+    adjustments = []
+    monkeypatch.setattr(survey_adjustment, "bundle_adjust", lambda *args, **kwargs: pytest.fail("a lens search"))
+    monkeypatch.setattr(survey_adjustment, "self_calibrating_adjust", lambda problem: adjustments.append(problem) or self_calibrating_adjust(problem))
+    adjusted, lens = adjust_survey(NOMINAL, truth, tracks_from_matches(keypoints, matches))
+    assert len(adjustments) == 1
+    assert lens.fx == pytest.approx(770.0, rel=0.004) and lens.fy == lens.fx
+    assert (lens.k1, lens.k2) == pytest.approx((-0.08, 0.03), abs=5e-4)
+    alignment = umeyama(adjusted[:, :3, 3], truth[:, :3, 3], with_scale=True)  # the first photo holds six of the seven gauge freedoms
+    assert np.abs(alignment.apply(adjusted[:, :3, 3]) - truth[:, :3, 3]).max() < 0.05
 
 
 def test_a_calibrated_lens_is_kept():

@@ -60,7 +60,7 @@ def observation_chi2(problem: BundleProblem, poses: np.ndarray, points: np.ndarr
     return reprojection_chi2(pc, problem.observed, problem.K, 1.0 / problem.sigma**2, problem.lens_jacobian)
 
 
-def _block_sums(index: np.ndarray, blocks: np.ndarray, count: int) -> np.ndarray:
+def block_sums(index: np.ndarray, blocks: np.ndarray, count: int) -> np.ndarray:
     """Sum of ``blocks[n]`` grouped by ``index[n]`` into ``count`` blocks of the same shape (one
     sparse product: about twice as fast as a bincount per entry)."""
     grouping = csr_matrix((np.ones(len(index)), (index, np.arange(len(index)))), shape=(count, len(index)))
@@ -118,8 +118,8 @@ class _Linearisation:
         P1 = c[:, None] * Ri[:, 1, :] + d[:, None] * Ri[:, 2, :]
         P0, P1 = _through_lens(lens, P0, P1)
         n_points, n_free = len(points), int(slot.max()) + 1 if len(slot) else 0
-        self.V = _block_sums(point_index, _outer(P0, P0) + _outer(P1, P1), n_points)
-        self.g_point = _block_sums(point_index, P0 * self.r[:, :1] + P1 * self.r[:, 1:], n_points)
+        self.V = block_sums(point_index, _outer(P0, P0) + _outer(P1, P1), n_points)
+        self.g_point = block_sums(point_index, P0 * self.r[:, :1] + P1 * self.r[:, 1:], n_points)
         free = slot[pose_index] >= 0
         s, j = slot[pose_index][free], point_index[free]
         a, b, c, d, x, y, z = (v[free] for v in (a, b, c, d, x, y, pc[:, 2]))
@@ -128,8 +128,8 @@ class _Linearisation:
         Q1 = np.stack([d * y - c * z, -d * x, c * x, zero, c, d], axis=1)
         Q0, Q1 = _through_lens(None if lens is None else lens[free], Q0, Q1)
         r_free = self.r[free]
-        self.U = _block_sums(s, _outer(Q0, Q0) + _outer(Q1, Q1), n_free)
-        self.g_pose = _block_sums(s, Q0 * r_free[:, :1] + Q1 * r_free[:, 1:], n_free)
+        self.U = block_sums(s, _outer(Q0, Q0) + _outer(Q1, Q1), n_free)
+        self.g_pose = block_sums(s, Q0 * r_free[:, :1] + Q1 * r_free[:, 1:], n_free)
         W = _outer(Q0, P0[free]) + _outer(Q1, P1[free])  # (n, 6, 3) pose-point coupling
         order = np.argsort(s, kind="stable")
         indptr = np.searchsorted(s[order], np.arange(n_free + 1))

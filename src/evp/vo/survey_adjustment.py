@@ -7,21 +7,16 @@ adjusted together, as structure from motion does: 6-DoF camera poses and the 3-D
 matched between photos (tracks), with the project's bundle adjustment.
 
 When the camera comes without a lens model, the focal length and the radial coefficients k1, k2
-are estimated too, as COLMAP and OpenSfM self-calibrate: the adjustment's robust reprojection
-cost, measured in the photos' own pixels, is minimised over the three as a least-squares problem
-(each observation's truncated error a residual; each residual evaluation one bundle adjustment,
-so the lens is the outer variable of a variable projection): Gauss-Newton with finite-difference
-derivatives takes 33-41 adjustments where the Nelder-Mead search it replaced took 91, to the same
-lens on the synthetic surveys of the tests; on Toledo 31 adjustments (f = 621.4 px, k1 = -0.085,
-k2 = 0.059; 1.80 m against GPS) against 91 (f = 539.3 px, 1.70 m: the same ridge;
-bench/survey_self_calibration.py).
-One joint adjustment with the lens among the variables was tried with SciPy's sparse
-trust-region solver and did not converge in 300 evaluations along the focal-height ridge (the
-project's Schur-complement bundle adjustment has no lens variables). Over perfectly flat ground the focal length trades against height; the relief
-of real ground tells them apart, if weakly: on the Toledo survey the cost falls from 50,400 (the
-EXIF focal length, no distortion) to 14,400 at f = 0.78 of EXIF's, k1 = -0.061, k2 = 0.036, and
-is 14,500 at 0.92, k1 = -0.089, k2 = 0.067 (a long ridge; the GPS heights over the ground
-suggest EXIF's focal length to 2 %). Positions against GPS: 2.54 m, 1.70 m and 1.88 m.
+are estimated too, as COLMAP and OpenSfM self-calibrate: they are variables of the one bundle
+adjustment, beside the poses and points (``evp.optim.self_calibration``), held near the EXIF
+camera by wide priors. Over perfectly flat ground the focal length trades against height; the
+relief of real ground tells them apart, if weakly: on the Toledo survey the adjustment slides
+along a long valley from EXIF's 693 px to f = 546 px, k1 = -0.065, k2 = 0.036 (0.79 of EXIF's;
+the cost falls by only 6 % on the way; 1.63 m against GPS), in one
+adjustment of ~40 iterations, where the Gauss-Newton search over the lens it replaced ran 31 whole
+adjustments (f = 621 px, 1.80 m) and the Nelder-Mead search before it 91 (539 px, 1.70 m)
+(bench/survey_self_calibration.py). The GPS heights over the ground suggest EXIF's focal length
+to 2 %: the lens found is the one that fits the photos best along that valley, not the maker's.
 """
 
 from __future__ import annotations
@@ -29,18 +24,13 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from evp.optim.bundle_adjustment import BundleProblem, bundle_adjust
-from evp.optim.reprojection import CHI2_2DOF
+from evp.optim.self_calibration import SelfCalibrationProblem, self_calibrating_adjust
 from evp.types import CameraModel, LensModel
 
-LENS_SCALES = (0.1, 0.05, 0.03)  # the lens search's typical steps: log focal length, k1, k2
-LENS_DIFF_STEP = 1e-3  # finite-difference step (relative): each adjustment stops at 1e-6 of its cost, so smaller steps see its noise
-LENS_EVALUATIONS = 12  # Gauss-Newton iterations of the lens search (each: one adjustment and three for the derivatives)
-LENS_FTOL = 1e-3  # stop when an iteration lowers the cost by less than 0.1 %
 MIN_TRACKS = 20  # fewer matched ground points: nothing worth adjusting, the given poses stand
 
 
@@ -89,11 +79,10 @@ def _ground_intersections(camera: CameraModel, poses_wc: np.ndarray, tracks: Sur
     return sums / counts[:, None]
 
 
-def _adjust(camera: CameraModel, poses_wc: np.ndarray, tracks: SurveyTracks) -> tuple[np.ndarray, np.ndarray]:
-    """Adjusted poses (camera-to-world) and each observation's truncated reprojection cost, in the
-    photos' own pixels, for one lens model. The bundle adjustment works on undistorted pixels; each
-    observation's standard deviation there is the lens's local magnification, so that costs of
-    different lens models compare."""
+def _adjust(camera: CameraModel, poses_wc: np.ndarray, tracks: SurveyTracks) -> np.ndarray:
+    """Adjusted poses (camera-to-world) for a calibrated lens. The bundle adjustment works on
+    undistorted pixels; each observation's standard deviation there is the lens's local
+    magnification, as the detector's noise is isotropic in the photos' own pixels."""
     xy = camera.undistort_points(tracks.pixels)
     r2 = np.sum(xy * xy, axis=1)
     tangential = 1.0 + camera.k1 * r2 + camera.k2 * r2 * r2  # d(distorted)/d(undistorted) across and along the radius
@@ -105,18 +94,20 @@ def _adjust(camera: CameraModel, poses_wc: np.ndarray, tracks: SurveyTracks) -> 
         np.linalg.inv(poses_wc), _ground_intersections(camera, poses_wc, tracks), tracks.image_index, tracks.track_index,
         camera.undistort_pixels(tracks.pixels), sigma, fixed, camera.K,
     )  # fmt: skip
-    poses_cw, _, chi2 = bundle_adjust(problem, evaluations=20, first_gate_chi2=np.inf)  # mosaic poses can be pixels off
-    return np.linalg.inv(poses_cw), np.minimum(chi2, CHI2_2DOF)
+    poses_cw, _, _ = bundle_adjust(problem, evaluations=20, first_gate_chi2=np.inf)  # mosaic poses can be pixels off
+    return np.linalg.inv(poses_cw)
 
 
-def _lens_and_poses(camera: CameraModel, poses_wc: np.ndarray, x: np.ndarray) -> tuple[CameraModel, np.ndarray]:
-    """The camera with focal lengths scaled by exp(x[0]) and radial coefficients x[1], x[2], and
-    the poses with heights over the ground (z = 0) scaled as the focal length is, so that each
-    photo still covers the same ground."""
-    scale = float(np.exp(x[0]))
-    scaled = poses_wc.copy()
-    scaled[:, 2, 3] *= scale
-    return replace(camera, fx=camera.fx * scale, fy=camera.fy * scale, k1=float(x[1]), k2=float(x[2])), scaled
+def _self_calibrate(camera: CameraModel, poses_wc: np.ndarray, tracks: SurveyTracks) -> tuple[np.ndarray, CameraModel]:
+    """Adjusted poses (camera-to-world) and the camera with the focal length, k1 and k2 adjusted
+    with them, in one bundle adjustment (``self_calibration``)."""
+    fixed = np.zeros(len(poses_wc), dtype=bool)
+    fixed[0] = True  # the gauge: the first photo where the mosaic put it
+    problem = SelfCalibrationProblem(
+        np.linalg.inv(poses_wc), _ground_intersections(camera, poses_wc, tracks), tracks.image_index, tracks.track_index, tracks.pixels, fixed, camera
+    )  # fmt: skip
+    poses_cw, lens, _ = self_calibrating_adjust(problem)
+    return np.linalg.inv(poses_cw), replace(lens, name=f"{camera.name or 'camera'}+self-calibrated")
 
 
 def adjust_survey(camera: CameraModel, poses_wc: np.ndarray, tracks: SurveyTracks) -> tuple[np.ndarray, CameraModel]:
@@ -128,12 +119,5 @@ def adjust_survey(camera: CameraModel, poses_wc: np.ndarray, tracks: SurveyTrack
     if tracks.num_tracks < MIN_TRACKS or camera.lens is not LensModel.RADTAN:
         return poses_wc, camera
     if camera.has_distortion:
-        return _adjust(camera, poses_wc, tracks)[0], camera
-
-    def residuals(x: np.ndarray) -> np.ndarray:
-        return np.sqrt(_adjust(*_lens_and_poses(camera, poses_wc, x), tracks)[1])
-
-    search = least_squares(residuals, np.zeros(3), diff_step=LENS_DIFF_STEP, x_scale=LENS_SCALES, max_nfev=LENS_EVALUATIONS, ftol=LENS_FTOL, method="trf")
-    lens, poses = _lens_and_poses(camera, poses_wc, search.x)
-    lens = replace(lens, name=f"{camera.name or 'camera'}+self-calibrated")
-    return _adjust(lens, poses, tracks)[0], lens
+        return _adjust(camera, poses_wc, tracks), camera
+    return _self_calibrate(camera, poses_wc, tracks)

@@ -7,6 +7,7 @@ must then see the trajectory and the event log. Screenshots land in test-artifac
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -72,7 +73,12 @@ def test_phone_page_streams_and_operator_sees_the_trajectory(tmp_path, station_d
         phone.wait_for_function("document.getElementById('link').textContent.startsWith('ready')")
         phone.click("#start")  # the link opens now; the station's config (the operator's camera) comes with it
         phone.wait_for_function("window.evpPhone.config && window.evpPhone.config.camera.width === 240")
-        phone.wait_for_function("window.evpPhone.poses >= 40 && window.evpPhone.gps >= 1", timeout=120_000)
+        phone.wait_for_function("window.evpPhone.sensing === true")
+        phone.evaluate(  # a headless browser has no motion sensors: 12 readings as the phone's would come
+            """() => { for (let k = 0; k < 12; k++) window.dispatchEvent(new DeviceMotionEvent("devicemotion", {
+                 accelerationIncludingGravity: {x: 0, y: 0, z: 9.8}, rotationRate: {alpha: 1, beta: 2, gamma: 3}, interval: 16})); }"""
+        )
+        phone.wait_for_function("window.evpPhone.poses >= 40 && window.evpPhone.gps >= 1 && window.evpPhone.imu === 12", timeout=120_000)
         operator.wait_for_function(
             "(() => { const s = window.evp.selected; return s && window.evp.trajectories[s] && window.evp.trajectories[s].points.filter(p => p.state === 'OK').length >= 10; })()",
             timeout=60_000,
@@ -93,8 +99,10 @@ def test_phone_page_streams_and_operator_sees_the_trajectory(tmp_path, station_d
         browser.close()
     store = SessionStore(f"sqlite:///{station_data / 'evp.sqlite'}")
     try:
-        kinds = {row["kind"] for row in store.rows("telemetry", session_id)}
-        assert "gps" in kinds
+        rows = store.rows("telemetry", session_id)
+        assert "gps" in {row["kind"] for row in rows}
+        imu = [json.loads(row["data_json"])["samples"] for row in rows if row["kind"] == "imu_batch"]
+        assert sum(len(samples) for samples in imu) == 12  # sent together (before frames), every reading kept
         assert "disable" in [e["code"] for e in store.rows("events", session_id)]
         assert len(store.rows("poses", session_id)) >= 40
     finally:

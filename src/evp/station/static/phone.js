@@ -4,7 +4,7 @@
 
 const $ = id => document.getElementById(id);
 const PROTOCOL = 1, ENCODING = { jpeg: 1, png: 2 };
-const phone = { socket: null, config: null, sessionId: null, nextSeq: 0, sent: 0, poses: 0, dropped: 0, errors: 0, skipped: 0, imu: 0, gps: 0,
+const phone = { socket: null, config: null, sessionId: null, nextSeq: 0, sent: 0, poses: 0, dropped: 0, errors: 0, skipped: 0, imu: 0, imuRows: [], gps: 0,
                 stream: null, timer: null, sending: Promise.resolve(), inFlight: 0 };
 // frames captured but not yet sent (being encoded): beyond this the phone is behind, and a new
 // frame is skipped at capture rather than queued (the station wants the newest frame anyway)
@@ -133,6 +133,7 @@ function captureFrame() {
     const frame = new Uint8Array(32 + payload.byteLength);
     frame.set(new Uint8Array(header(seq, timestamp, encoding, width, height, payload.byteLength)), 0);
     frame.set(new Uint8Array(payload), 32);
+    flushImu(); // the IMU up to the frame arrives before it
     if (phone.socket.readyState === WebSocket.OPEN) { phone.socket.send(frame.buffer); phone.sent++; $("sent").textContent = phone.sent; }
   }).catch(error => log("frame " + seq + ": " + error)).finally(() => { phone.inFlight--; });
 }
@@ -147,13 +148,24 @@ function cameraExtrinsic() {
   return [0, 1, 2].flatMap(i => [right[i], down[i], forward[i], 0]).concat([0, 0, 0, 1]);
 }
 
+// IMU samples go together (kind imu_batch): before each frame, and at most IMU_BATCH_SPAN_S of them
+// without frames; a message a sample costs the station more than the frames (docs/protocol.md).
+const IMU_BATCH_SPAN_S = 0.05;
+function flushImu() {
+  const rows = phone.imuRows;
+  if (!rows.length) return;
+  phone.imuRows = [];
+  send({ type: "telemetry", kind: "imu_batch", timestamp: rows.at(-1)[0], samples: rows });
+}
+
 function startSensors() {
   const deg = Math.PI / 180;
   window.addEventListener("devicemotion", e => {
     const r = e.rotationRate, a = e.accelerationIncludingGravity;
     if (!r || !a || r.alpha === null || a.x === null) return;
     // W3C: rotationRate in deg/s about the device z (alpha), x (beta), y (gamma) axes
-    send({ type: "telemetry", kind: "imu", timestamp: performance.now() / 1000, gyro_rad_s: [r.beta * deg, r.gamma * deg, r.alpha * deg], accel_m_s2: [a.x, a.y, a.z] });
+    phone.imuRows.push([performance.now() / 1000, r.beta * deg, r.gamma * deg, r.alpha * deg, a.x, a.y, a.z]);
+    if (phone.imuRows.at(-1)[0] - phone.imuRows[0][0] >= IMU_BATCH_SPAN_S || phone.imuRows.length >= 256) flushImu();
     $("imu").textContent = ++phone.imu;
   });
   if (navigator.geolocation) navigator.geolocation.watchPosition(p => {

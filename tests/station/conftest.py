@@ -2,13 +2,20 @@
 
 Stations run in the development mode (``--dev-loopback``: no credentials) unless a test asks for
 ``paired=True``; then ``operator_credential`` and ``mobile_credential`` pair as a real operator
-and phone do (a one-time code for a credential)."""
+and phone do (a one-time code for a credential).
+
+Each station keeps its database in its data folder (SQLite) unless ``EVP_TEST_POSTGRES`` names a
+PostgreSQL server (``postgresql://user@host:port/db``, e.g. what ``scripts/postgres.sh start``
+prints): then each data folder gets a database of its own there, and the station suite runs on
+PostgreSQL (too long to run twice in CI: docs/station.md says how to run it)."""
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import hashlib
 import json
+import os
 import shutil
 import signal
 import socket
@@ -32,6 +39,57 @@ def free_port(kind: int = socket.SOCK_STREAM) -> int:
     with socket.socket(socket.AF_INET, kind) as probe:
         probe.bind(("127.0.0.1", 0))
         return probe.getsockname()[1]
+
+
+def new_postgres_database(server: str, name: str | None = None) -> str:
+    """The URL of a new, empty database on the PostgreSQL ``server`` (a fresh name unless given)."""
+    import uuid
+
+    import sqlalchemy as sa
+
+    from evp.station.schema import open_engine
+
+    name = name or f"t{uuid.uuid4().hex[:12]}"
+    admin = open_engine(server)
+    with admin.connect().execution_options(isolation_level="AUTOCOMMIT") as connection:
+        connection.execute(sa.text(f"CREATE DATABASE {name}"))
+    admin.dispose()
+    return server.rpartition("/")[0] + f"/{name}"
+
+
+_POSTGRES_DATABASES: dict[Path, str] = {}
+
+
+def station_database(data: Path) -> str:
+    """The database URL of the station whose data folder is ``data``: its SQLite file, or its own
+    database on the ``EVP_TEST_POSTGRES`` server."""
+    server = os.environ.get("EVP_TEST_POSTGRES")
+    if not server:
+        return f"sqlite:///{data / 'evp.sqlite'}"
+    data = data.resolve()
+    if data not in _POSTGRES_DATABASES:
+        _POSTGRES_DATABASES[data] = new_postgres_database(server, "t" + hashlib.sha1(str(data).encode()).hexdigest()[:16])
+    return _POSTGRES_DATABASES[data]
+
+
+def database_contents(data: Path) -> bytes:
+    """Everything the station's database holds, as bytes to search: the SQLite files as stored on
+    disk, or every row of every table on PostgreSQL."""
+    url = station_database(data)
+    if url.startswith("sqlite"):
+        return b"".join(path.read_bytes() for path in data.glob("evp.sqlite*"))
+    import sqlalchemy as sa
+
+    from evp.station.schema import open_engine
+
+    engine = open_engine(url)
+    try:
+        with engine.connect() as connection:
+            tables = sa.MetaData()
+            tables.reflect(connection)
+            return "".join(repr(row) for table in tables.sorted_tables for row in connection.execute(sa.select(table))).encode()
+    finally:
+        engine.dispose()
 
 
 @dataclass
@@ -63,6 +121,8 @@ def running_station(data: Path, *options: str, port: int | None = None, paired: 
     port = port or free_port()
     log = (data.parent / f"{data.name}-serve.log").open("ab")
     command = [sys.executable, "-m", "evp.cli", "serve", "--host", "127.0.0.1", "--port", str(port), "--data", str(data), *options]
+    if os.environ.get("EVP_TEST_POSTGRES") and "--db" not in options:
+        command += ["--db", station_database(data)]
     if not paired:
         command.append("--dev-loopback")
     process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, preexec_fn=preexec_fn)
@@ -106,7 +166,7 @@ def operator_login_code(station: RunningStation) -> str:
     from evp.station.auth import Credentials
     from evp.station.store import SessionStore
 
-    store = SessionStore(f"sqlite:///{station.data / 'evp.sqlite'}")
+    store = SessionStore(station_database(station.data))
     try:
         return Credentials(store.engine).issue_code("operator", 60)
     finally:

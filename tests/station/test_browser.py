@@ -18,7 +18,7 @@ import pytest
 from evp.io.registry import open_dataset
 from evp.station.store import SessionStore
 from tests.conftest import PROJECT, SAMPLE
-from tests.station.conftest import operator_login_code, running_station
+from tests.station.conftest import operator_login_code, running_station, station_database
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 ARTIFACTS = PROJECT / "test-artifacts"
@@ -97,7 +97,7 @@ def test_phone_page_streams_and_operator_sees_the_trajectory(tmp_path, station_d
         phone.uncheck("#enable")
         operator.wait_for_function("document.getElementById('st-state').textContent === 'stopped'", timeout=10_000)
         browser.close()
-    store = SessionStore(f"sqlite:///{station_data / 'evp.sqlite'}")
+    store = SessionStore(station_database(station_data))
     try:
         rows = store.rows("telemetry", session_id)
         assert "gps" in {row["kind"] for row in rows}

@@ -23,7 +23,7 @@ from evp.run_setup import make_estimator
 from evp.station.recording import has_summary
 from evp.station.store import SessionStore
 from tests.conftest import SAMPLE
-from tests.station.conftest import OperatorFeed, free_port, indexed_messages, run_stream, running_station
+from tests.station.conftest import OperatorFeed, free_port, indexed_messages, run_stream, running_station, station_database
 
 os.environ.setdefault("MAVLINK20", "1")
 
@@ -73,7 +73,7 @@ def test_sample_streamed_to_the_station_matches_evp_run(tmp_path, station_data):
     differences = [np.linalg.norm(row[1:4] - offline[round(row[0], 6)]) for row in streamed]
     assert max(differences) < 1e-9
 
-    store = SessionStore(f"sqlite:///{station_data / 'evp.sqlite'}")
+    store = SessionStore(station_database(station_data))
     try:
         session = store.session(summary["session_id"])
         assert session["status"] == "ended"

@@ -21,7 +21,16 @@ from evp.station.recording import has_summary
 from evp.station.store import SessionStore
 from evp.types import CameraModel
 from tests.conftest import SAMPLE
-from tests.station.conftest import OperatorFeed, committed, indexed_messages, insecure_tls, mobile_credential, operator_credential, running_station
+from tests.station.conftest import (
+    OperatorFeed,
+    committed,
+    indexed_messages,
+    insecure_tls,
+    mobile_credential,
+    operator_credential,
+    running_station,
+    station_database,
+)
 
 
 @pytest.fixture(scope="module")
@@ -79,7 +88,7 @@ def _http_status(url: str) -> int:
 
 
 def _store(data) -> SessionStore:
-    return SessionStore(f"sqlite:///{data / 'evp.sqlite'}")
+    return SessionStore(station_database(data))
 
 
 def test_bad_messages_get_specific_errors_and_the_session_goes_on(station_data, frames):

@@ -11,7 +11,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-import sqlite3
 
 import pytest
 import websockets
@@ -20,7 +19,17 @@ from evp.io.registry import open_dataset
 from evp.station.protocol import PROTOCOL_VERSION, Hello, encode
 from evp.station.store import SessionStore
 from tests.conftest import SAMPLE
-from tests.station.conftest import OperatorFeed, committed, http_json, insecure_tls, mobile_credential, operator_credential, running_station
+from tests.station.conftest import (
+    OperatorFeed,
+    committed,
+    database_contents,
+    http_json,
+    insecure_tls,
+    mobile_credential,
+    operator_credential,
+    running_station,
+    station_database,
+)
 from tests.station.test_faults import _connect, _open_session, _stream_until_posed
 
 
@@ -93,7 +102,7 @@ def test_takeover_steps_all_fail_with_and_without_the_operators_credential(stati
             assert not asyncio.run(_operator_feed_opens(station.url, headers)), who
         assert http_json(station, "GET", "/api/sessions", credential=operator)[0] == 200  # the operator's own role
 
-        store = SessionStore(f"sqlite:///{station_data / 'evp.sqlite'}")
+        store = SessionStore(station_database(station_data))
         try:
             committed(lambda: store.session(session_id)["status"] == "ended", "the ended status")
             assert len(store.rows("frames", session_id)) == 4  # nothing injected
@@ -154,11 +163,14 @@ def test_pairing_codes_are_one_use_credentials_hashed_revocable_and_never_logged
         assert http_json(station, "GET", "/api/health", credential=operator)[1] == {"database": "ok", "schema_version": "0002"}
         guesses = [http_json(station, "POST", "/api/pair", {"code": f"guess-{k}", "device": "x"})[0] for k in range(7)]
         assert guesses == [403] * 4 + [429] * 3, "the copy above was this client's first failure"
-    with sqlite3.connect(station_data / "evp.sqlite") as database:
-        refusals = [text for (text,) in database.execute("SELECT text FROM events WHERE code = 'pairing_refused' ORDER BY id")]
+    store = SessionStore(station_database(station_data))
+    try:
+        refusals = [event["text"] for event in store.recent_events() if event["code"] == "pairing_refused"]
+    finally:
+        store.close()
     assert len(refusals) == 5 and "refused unchecked for 60 s" in refusals[-1], "the event log hears of the limit once, then nothing"
     secrets = [phone.partition(".")[2], operator.partition(".")[2], offer["code"]]
-    stored = b"".join(path.read_bytes() for path in station_data.glob("evp.sqlite*"))
+    stored = database_contents(station_data)
     log = (station_data.parent / f"{station_data.name}-serve.log").read_bytes()
     for secret in secrets:
         assert secret.encode() not in stored and secret.encode() not in log

@@ -13,7 +13,7 @@ import urllib.request
 import pytest
 
 from tests.conftest import SAMPLE
-from tests.station.conftest import insecure_tls, running_station
+from tests.station.conftest import insecure_tls, running_station, station_database
 from tests.station.test_browser import ARTIFACTS, CHROMIUM, write_y4m
 
 pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (scripts/test.sh installs it when it can)")
@@ -96,7 +96,7 @@ def test_operator_counts_and_states_follow_a_session(station_data):
 def _sessions_after(station_data) -> list[dict]:
     from evp.station.store import SessionStore
 
-    store = SessionStore(f"sqlite:///{station_data / 'evp.sqlite'}")
+    store = SessionStore(station_database(station_data))
     try:
         return store.list_sessions(limit=None)
     finally:

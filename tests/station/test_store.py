@@ -12,7 +12,6 @@ import subprocess
 import sys
 import threading
 import time
-import uuid
 
 import pytest
 import sqlalchemy as sa
@@ -22,16 +21,7 @@ from evp.station.auth import Credentials, PairingError
 from evp.station.schema import head, health, open_engine, upgrade, version
 from evp.station.store import SessionStore
 from tests.conftest import SAMPLE
-from tests.station.conftest import OperatorFeed, run_stream, running_station
-
-
-def _new_postgres_database(server: str) -> str:
-    name = f"t{uuid.uuid4().hex[:12]}"
-    admin = open_engine(server)
-    with admin.connect().execution_options(isolation_level="AUTOCOMMIT") as connection:
-        connection.execute(sa.text(f"CREATE DATABASE {name}"))
-    admin.dispose()
-    return server.rpartition("/")[0] + f"/{name}"
+from tests.station.conftest import OperatorFeed, new_postgres_database, run_stream, running_station
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])
@@ -39,7 +29,7 @@ def database(request, tmp_path) -> str:
     """A fresh, empty database of each kind (PostgreSQL: a new database on the test server)."""
     if request.param == "sqlite":
         return f"sqlite:///{tmp_path / 'evp.sqlite'}"
-    return _new_postgres_database(request.getfixturevalue("postgres_url"))
+    return new_postgres_database(request.getfixturevalue("postgres_url"))
 
 
 def _wait_for(check, what: str) -> None:
@@ -61,6 +51,23 @@ def test_a_new_database_gets_the_newest_schema_and_the_store_reads_what_it_wrote
         assert store.mark_live_sessions_interrupted() == [session_id]
         assert [s["status"] for s in store.list_sessions()] == ["interrupted"]
         assert health(store.engine) is None
+    finally:
+        store.close()
+
+
+def test_a_flush_returns_once_every_earlier_write_is_committed(database):
+    """A resume reads the session's row to refuse an ended session: the end, queued a moment
+    before, must be in it (the writer collects rows for COLLECT_S before committing)."""
+    store = SessionStore(database)
+    try:
+        session_id = store.create_session("phone", "/tmp/x.mcap")
+        for seq in range(50):
+            store.insert(
+                "frames", session_id=session_id, seq=seq, timestamp=seq, received_at=seq, encoding="png", width=4, height=3, size_bytes=10, estimated=True
+            )
+        store.update_session(session_id, status="ended")
+        assert store.flush()
+        assert store.session(session_id)["status"] == "ended" and len(store.rows("frames", session_id)) == 50
     finally:
         store.close()
 
@@ -131,7 +138,7 @@ def test_unusable_database_urls_are_one_clear_line(monkeypatch, postgres_url):
 
 
 def test_the_station_records_a_stream_in_postgresql(postgres_url, station_data, tmp_path):
-    url = _new_postgres_database(postgres_url)
+    url = new_postgres_database(postgres_url)
     with running_station(station_data, "--db", url) as station, OperatorFeed(station) as feed:
         summary = run_stream(
             str(SAMPLE),

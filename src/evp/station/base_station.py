@@ -148,6 +148,8 @@ class Station:
         if not SESSION_ID.fullmatch(hello.resume):
             raise ProtocolError("unknown_session", f"{hello.resume[:64]!r} is not a session id (YYYYMMDD-HHMMSS-xxxxxx)")
         session = self.sessions.get(hello.resume)
+        if session is None:
+            self.store.flush()  # the session's end may still be queued: its row must say so
         row = self.store.session(hello.resume) if session is None else None
         owner = session.owner if session is not None else (row or {}).get("owner")
         if owner is None or owner != identity.credential_id:

@@ -219,6 +219,14 @@ class SessionStore:
         self.insert("events", **row)
         return row
 
+    def flush(self, timeout: float = 5.0) -> bool:
+        """Wait until every write queued before this call is committed, for a read that decides
+        something (a resume must see the session's end); False when the database did not take
+        them within ``timeout`` (its problem is reported apart)."""
+        committed = threading.Event()
+        self._queue.put(committed)
+        return committed.wait(timeout)
+
     def close(self) -> None:
         self._queue.put(None)
         self._thread.join(timeout=30)
@@ -229,17 +237,19 @@ class SessionStore:
         and is retried, so rows are written in order and none is dropped while the database or
         its disk fails."""
         batch: list = []
+        flushes: list[threading.Event] = []  # set once what was queued before them is committed
         delay = RETRY_FIRST_S
         stop = False
         while True:
             if not batch:
                 batch.append(self._queue.get())
-                if batch[0] is not None:
+                if isinstance(batch[0], tuple):
                     time.sleep(COLLECT_S)
             while not self._queue.empty():
                 batch.append(self._queue.get())
             stop = stop or None in batch
-            batch = [b for b in batch if b is not None]
+            flushes += [b for b in batch if isinstance(b, threading.Event)]
+            batch = [b for b in batch if isinstance(b, tuple)]
             try:
                 self._commit_or_isolate(batch)
             except Exception as exc:  # noqa: BLE001 - whatever the database says, the writer goes on
@@ -252,6 +262,9 @@ class SessionStore:
                 continue
             delay = RETRY_FIRST_S
             self._set_problem(None)
+            for committed in flushes:
+                committed.set()
+            flushes.clear()
             if stop:
                 return
 

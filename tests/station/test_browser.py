@@ -101,7 +101,7 @@ def test_phone_page_streams_and_operator_sees_the_trajectory(tmp_path, station_d
     try:
         rows = store.rows("telemetry", session_id)
         assert "gps" in {row["kind"] for row in rows}
-        imu = [json.loads(row["data_json"])["samples"] for row in rows if row["kind"] == "imu_batch"]
+        imu = [json.loads(row["data_json"])["samples"] for row in rows if row["kind"] == "imu"]
         assert sum(len(samples) for samples in imu) == 12  # sent together (before frames), every reading kept
         assert "disable" in [e["code"] for e in store.rows("events", session_id)]
         assert len(store.rows("poses", session_id)) >= 40

@@ -88,7 +88,7 @@ def test_sample_streamed_to_the_station_matches_evp_run(tmp_path, station_data):
         assert topics["/tf"] == frames  # the camera's pose, where Foxglove's 3-D panel places it
 
         replay = subprocess.run(
-            [sys.executable, "-m", "evp.cli", "replay", summary["session_id"], "--data", str(station_data), "--out", str(tmp_path / "replay")],
+            [sys.executable, "-m", "evp.cli", "replay", summary["session_id"], "--data", str(station_data), "--db", station_database(station_data), "--out", str(tmp_path / "replay")],
             capture_output=True, text=True, timeout=300,
         )  # fmt: skip
         assert replay.returncode == 0, replay.stderr

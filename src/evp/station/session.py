@@ -226,7 +226,7 @@ class LiveSession:
         self._last_telemetry_time[sensor] = message.timestamp
         self.recording.telemetry(message, text, now)
         data = message.model_dump(exclude={"type", "kind", "timestamp"})
-        self.store.insert("telemetry", session_id=self.id, kind=message.kind, timestamp=message.timestamp, received_at=now, data_json=json.dumps(data))
+        self.store.insert("telemetry", session_id=self.id, kind=sensor, timestamp=message.timestamp, received_at=now, data_json=json.dumps(data))
         jump = self.station.settings.station.max_clock_jump_s
         if np.isfinite(last) and first - last > jump:
             self.event(

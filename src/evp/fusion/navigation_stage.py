@@ -300,10 +300,18 @@ class NavigationStage:
         sigma = accuracy if math.isfinite(accuracy) and accuracy > 0 else self.settings.gps_default_sigma_m
         enu = np.array([e for _, e in self._gps_pairs])
         alignment = align_to_gps(local, enu, sigma)
-        residual = float(np.sqrt(np.mean(np.sum(((local @ alignment.R.T + alignment.t) - enu)[:, :2] ** 2, axis=1))))
+        residuals = (local @ alignment.R.T + alignment.t) - enu
+        residual = float(np.sqrt(np.mean(np.sum(residuals[:, :2] ** 2, axis=1))))
         self.alignment_progress = replace(self.alignment_progress, model=ALIGNMENT_MODEL, residual_m=residual)
         self.world_changes += 1
-        self.filter.move_world(alignment.R, alignment.t, alignment.pivot, alignment.translation_sigma_m, alignment.yaw_sigma_rad)
+        # the receiver's correlated error moved the fit as much as the fixes: the filter's GPS
+        # error state takes it; what the fit's residual shows of the track's own distortion
+        # (its scale still settling) is the translation's doubt beside it, per axis
+        fix_error = GpsPosition(fix.timestamp, tuple(enu[-1]), fix.horizontal_accuracy_m, fix.vertical_accuracy_m).variances(self.settings)
+        distortion = np.sqrt(np.mean(residuals**2, axis=0))
+        self.filter.move_world(
+            alignment.R, alignment.t, alignment.pivot, distortion, alignment.yaw_sigma_rad, (1.0 - self.settings.gps_white_share) * fix_error
+        )
         if self._ground_height_m is not None:
             self._ground_height_m += float(alignment.t[2])
         self._last_fix_position = alignment.R @ self._last_fix_position + alignment.t

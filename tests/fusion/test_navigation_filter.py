@@ -32,16 +32,17 @@ def noisy_imu(trajectory, duration_s, settings, seed=1):
 
 
 def gps_fix(trajectory, t, rng, sigma=0.3, offset=(0.0, 0.0, 0.0), correlated=(0.0, 0.0, 0.0)):
-    """A fix reporting the accuracy ``sigma``: white noise of the filter's share of its variance,
-    the receiver's ``correlated`` error (see :func:`gauss_markov`) and a spoofer's ``offset``."""
+    """A fix reporting ``sigma`` per axis (the horizontal accuracy is both axes' RMS): white noise
+    of the filter's share of its variance, the receiver's ``correlated`` error (see
+    :func:`gauss_markov`) and a spoofer's ``offset``."""
     white = sigma * np.sqrt(NavigationSettings().gps_white_share)
     z = trajectory.position(t) + white * rng.standard_normal(3) + np.asarray(offset) + np.asarray(correlated)
-    return GpsPosition(t, tuple(z), sigma, sigma)
+    return GpsPosition(t, tuple(z), sigma * np.sqrt(2.0), sigma)
 
 
 def gauss_markov(times, accuracy, settings, rng):
     """(N, 3) a receiver's correlated errors at ``times``: first-order Gauss-Markov, the settings'
-    correlation time, the share of ``accuracy``'s variance that is not white."""
+    correlation time, the share of the per-axis ``accuracy``'s variance that is not white."""
     sigma = accuracy * np.sqrt(1.0 - settings.gps_white_share)
     errors, state = [], sigma * rng.standard_normal(3)
     for i, t in enumerate(times):

@@ -142,10 +142,11 @@ class GpsPosition:
     kind = "gps"
 
     def variances(self, s: NavigationSettings) -> np.ndarray:
-        """The fix's error variance per ENU axis (white and correlated parts together)."""
+        """The fix's error variance per ENU axis (white and correlated parts together): the
+        horizontal accuracy is both axes' RMS (:class:`evp.types.GpsFix`), half its square each."""
         horizontal = _sigma(self.horizontal_sigma_m, s.gps_default_sigma_m)
         vertical = _sigma(self.vertical_sigma_m, 1.5 * horizontal)  # GPS vertical is ~1.5x worse (typical receiver specs)
-        return np.array([horizontal, horizontal, vertical]) ** 2
+        return np.array([horizontal**2 / 2, horizontal**2 / 2, vertical**2])
 
     def linearise(self, x: NavState, gyro: np.ndarray, s: NavigationSettings) -> Linearisation | Refusal:
         if not _finite(self.position_enu):

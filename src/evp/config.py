@@ -243,6 +243,11 @@ class NavigationSettings(_Section):
     )
     gps_default_sigma_m: float = Field(2.5, gt=0, description="GPS position noise when the fix gives no accuracy")
     gps_velocity_sigma_m_s: float = Field(0.3, gt=0, description="GPS velocity noise when the fix gives none")
+    visual_jump_reset_s: float = Field(
+        1.0,
+        gt=0,
+        description="visual poses all refused by the gate for this long are a jump of the visual map the estimator did not announce (SLAM's loop correction moved the 300 s drone flight's poses 3.8 m at 268 s, and the filter coasted on the IMU to the end): the map's pose is re-anchored, its scale kept (PX4 EKF2 likewise resets to an aiding source its gate has refused for a timeout)",
+    )
     gps_correlation_time_s: float = Field(
         60.0,
         gt=0,

@@ -16,7 +16,21 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from evp.config import NavigationSettings
-from evp.fusion.nav_state import ATTITUDE, BARO_BIAS, ERROR_DIM, GPS_BIAS, GYRO_BIAS, LOG_SCALE, MAP_ATTITUDE, MAP_POSITION, POSITION, VELOCITY, NavState, skew3, so3_log
+from evp.fusion.nav_state import (
+    ATTITUDE,
+    BARO_BIAS,
+    ERROR_DIM,
+    GPS_BIAS,
+    GYRO_BIAS,
+    LOG_SCALE,
+    MAP_ATTITUDE,
+    MAP_POSITION,
+    POSITION,
+    VELOCITY,
+    NavState,
+    skew3,
+    so3_log,
+)
 
 
 @dataclass(frozen=True)

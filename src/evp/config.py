@@ -243,6 +243,22 @@ class NavigationSettings(_Section):
     )
     gps_default_sigma_m: float = Field(2.5, gt=0, description="GPS position noise when the fix gives no accuracy")
     gps_velocity_sigma_m_s: float = Field(0.3, gt=0, description="GPS velocity noise when the fix gives none")
+    visual_jump_reset_s: float = Field(
+        1.0,
+        gt=0,
+        description="visual poses all refused by the gate for this long are a jump of the visual map the estimator did not announce (SLAM's loop correction moved the 300 s drone flight's poses 3.8 m at 268 s, and the filter coasted on the IMU to the end): the map's pose is re-anchored, its scale kept (PX4 EKF2 likewise resets to an aiding source its gate has refused for a timeout)",
+    )
+    gps_correlation_time_s: float = Field(
+        60.0,
+        gt=0,
+        description="GPS position error's correlation time (first-order Gauss-Markov state): a single-frequency receiver's multipath and ionospheric errors change over about a minute (the simulator's model, evp.sim.sensors.GpsConfig)",
+    )
+    gps_white_share: float = Field(
+        0.3,
+        ge=0,
+        lt=1,
+        description="share of a fix's error variance that is white from fix to fix; the rest is the correlated error state (the simulator's model: 30 %)",
+    )
     wheel_speed_sigma_m_s: float = Field(0.05, gt=0, description="wheel forward speed noise")
     non_holonomic_sigma_m_s: float = Field(0.1, gt=0, description="lateral and vertical body speed of a ground vehicle (non-holonomic constraint)")
     yaw_rate_sigma_rad_s: float = Field(0.01, gt=0)

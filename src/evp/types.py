@@ -38,7 +38,9 @@ class ImuSample:
 
 @dataclass(frozen=True)
 class GpsFix:
-    """WGS-84 fix; accuracies are 1-sigma in metres (NaN when the receiver gives none)."""
+    """WGS-84 fix; accuracies in metres (NaN when the receiver gives none): the vertical one
+    1-sigma, the horizontal one the horizontal RMS error (east and north together: 1-sigma per
+    axis times sqrt(2), about the 68 % radius a phone reports and what the simulator draws)."""
 
     timestamp: float
     latitude_deg: float

@@ -94,6 +94,22 @@ def test_a_relocalisation_is_a_jump_not_motion():
     assert all(r.visual.accepted for r in stage.records if r.visual is not None)
 
 
+def test_an_unannounced_jump_of_the_map_is_re_anchored_once_the_gate_has_refused_it_for_a_while():
+    """A loop correction moves SLAM's poses without a reset: the gate refuses every pose for
+    navigation.visual_jump_reset_s, then the map's pose is re-anchored and the poses fused again."""
+    trajectory = SinusoidTrajectory()
+    times = np.arange(0.0, DURATION_S, 1.0 / FRAME_RATE)
+    jump = 50  # from frame 50 (2.5 s) the map is 3 m off in the world, the reset counter unchanged
+    moved = {"t_world_map": T_WORLD_MAP + [3.0, 0.0, 0.0]}
+    estimates = [PoseEstimate(float(t), map_pose(trajectory, t, **(moved if i >= jump else {})), TrackingState.OK) for i, t in enumerate(times)]
+    settings = NavigationSettings(visual_jump_reset_s=0.5)
+    stage, result = _run(estimates, trajectory.imu(imu_times(DURATION_S)), settings=settings)
+    refused = [r.visual.timestamp for r in stage.records if r.visual is not None and not r.visual.accepted]
+    assert refused == list(times[jump : jump + 10])  # 0.5 s of them at 20 fps, then the one that re-anchors is fused
+    assert [n.code for n in stage.notices if n.level == "warning"] == ["visual_jump"]
+    assert _se3_error(trajectory, result) < 0.01  # the 3 m never entered the body's track
+
+
 def test_bad_imu_is_dropped_with_a_warning_and_the_run_goes_on():
     trajectory = SinusoidTrajectory()
     times = np.arange(0.0, DURATION_S, 1.0 / FRAME_RATE)

@@ -65,10 +65,12 @@ def test_a_spoofers_pull_off_never_enters_the_state():
     start, rate = 12.0, 5.0  # the spoofer pulls GPS east at 5 m/s from 12 s: 65 m off at the end
     stage, result = _run_with_gps(_fixes(trajectory, offset=lambda t: np.array([rate * max(0.0, t - start), 0.0, 0.0])))
     times, errors = _horizontal_errors(trajectory, stage, result)
-    # the first second of pull-off (5 m) passes the filter's gate fix by fix and moves the state
-    # by ~0.7 m; then the gate refuses it, and 3.7 s after its start the monitor untrusts GPS
-    assert errors.max() < 1.0, errors.max()  # while GPS drifts 65 m
-    assert errors[-1] <= errors[times <= start + 2.0][-1] + 0.05  # nothing more of it after
+    # the first 0.6 s of pull-off (3 m) pass the filter's gate fix by fix (a GPS error that
+    # size is within the receiver's correlated error) and move the state by ~0.3 m; then the gate
+    # refuses it, and 3.6 s after its start the monitor untrusts GPS
+    assert errors.max() < 0.6, errors.max()  # while GPS drifts 65 m
+    # nothing more of it after: the 0.2 m is drift from the velocity the first fixes bent
+    assert errors[-1] <= errors[times <= start + 2.0][-1] + 0.2
     assert [e.kind for e in stage.gps_monitor.events] == ["spoofing_alarm"]
     assert not result.estimates[-1].gps_trusted and result.estimates[-1].georeferenced
     late = [r for r in stage.gps_records if r.timestamp > start + 2.0]

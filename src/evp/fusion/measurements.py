@@ -16,7 +16,21 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from evp.config import NavigationSettings
-from evp.fusion.nav_state import ATTITUDE, BARO_BIAS, ERROR_DIM, GYRO_BIAS, LOG_SCALE, MAP_ATTITUDE, MAP_POSITION, POSITION, VELOCITY, NavState, skew3, so3_log
+from evp.fusion.nav_state import (
+    ATTITUDE,
+    BARO_BIAS,
+    ERROR_DIM,
+    GPS_BIAS,
+    GYRO_BIAS,
+    LOG_SCALE,
+    MAP_ATTITUDE,
+    MAP_POSITION,
+    POSITION,
+    VELOCITY,
+    NavState,
+    skew3,
+    so3_log,
+)
 
 
 @dataclass(frozen=True)
@@ -128,7 +142,9 @@ class RangeHeight:
 class GpsPosition:
     """A GPS fix already in the world frame (ENU at the take-off point, metres), with its 1-sigma
     accuracies and, when the receiver gives it, its ENU velocity; ``antenna_body`` is the antenna
-    in the IMU frame."""
+    in the IMU frame. The fix is the antenna's position plus the filter's GPS error state (the
+    correlated part of the fix's error, see :mod:`evp.fusion.nav_state`) plus white noise: only
+    ``gps_white_share`` of the accuracy's variance is new in each fix."""
 
     timestamp: float
     position_enu: tuple[float, float, float]
@@ -139,17 +155,23 @@ class GpsPosition:
     antenna_body: tuple[float, float, float] = (0.0, 0.0, 0.0)
     kind = "gps"
 
+    def variances(self, s: NavigationSettings) -> np.ndarray:
+        """The fix's error variance per ENU axis (white and correlated parts together): the
+        horizontal accuracy is both axes' RMS (:class:`evp.types.GpsFix`), half its square each."""
+        horizontal = _sigma(self.horizontal_sigma_m, s.gps_default_sigma_m)
+        vertical = _sigma(self.vertical_sigma_m, 1.5 * horizontal)  # GPS vertical is ~1.5x worse (typical receiver specs)
+        return np.array([horizontal**2 / 2, horizontal**2 / 2, vertical**2])
+
     def linearise(self, x: NavState, gyro: np.ndarray, s: NavigationSettings) -> Linearisation | Refusal:
         if not _finite(self.position_enu):
             return Refusal("GPS position is not finite (no lock)")
         antenna = np.asarray(self.antenna_body, float)
-        horizontal = _sigma(self.horizontal_sigma_m, s.gps_default_sigma_m)
-        vertical = _sigma(self.vertical_sigma_m, 1.5 * horizontal)  # GPS vertical is ~1.5x worse (typical receiver specs)
-        rows = [np.asarray(self.position_enu, float) - (x.position + x.R_world_body @ antenna)]
-        variances = [horizontal**2, horizontal**2, vertical**2]
+        rows = [np.asarray(self.position_enu, float) - (x.position + x.R_world_body @ antenna + x.gps_bias)]
+        variances = list(s.gps_white_share * self.variances(s))
         H = np.zeros((3, ERROR_DIM))
         H[:, POSITION] = np.eye(3)
         H[:, ATTITUDE] = -x.R_world_body @ skew3(antenna)
+        H[:, GPS_BIAS] = np.eye(3)
         if self.velocity_enu is not None and _finite(self.velocity_enu):
             rows.append(np.asarray(self.velocity_enu, float) - x.velocity)
             variances += [_sigma(self.velocity_sigma_m_s, s.gps_velocity_sigma_m_s) ** 2] * 3

@@ -4,7 +4,7 @@ Frames: the world is gravity-aligned ENU (z up; ENU at the take-off point once g
 the body is the IMU frame; the visual map is the SLAM map's own frame, in its own arbitrary units.
 A map point ``x_map`` is ``exp(log_scale) * R_world_map @ x_map + t_world_map`` in the world.
 
-Error state (23 numbers, :data:`ERROR_DIM`), ``true = nominal (+) error``:
+Error state (26 numbers, :data:`ERROR_DIM`), ``true = nominal (+) error``:
 
 - ``dp``, ``dv``: world position and velocity, added;
 - ``dtheta``: body attitude, local (``R = R_nominal Exp(dtheta)``), so gravity fixes its body
@@ -17,7 +17,10 @@ Error state (23 numbers, :data:`ERROR_DIM`), ``true = nominal (+) error``:
   first keyframe's frame, tilted arbitrarily against gravity, so roll and pitch are unknowns as
   much as yaw until the IMU has seen gravity; with a global error its world-z component is the
   heading, the only part that stays unobservable without GPS or another absolute reference;
-- ``dbaro``: barometer bias (baro altitude minus world z), added.
+- ``dbaro``: barometer bias (baro altitude minus world z), added;
+- ``dgps``: the GPS receiver's slowly varying position error (fix minus truth, ENU, m), added: a
+  first-order Gauss-Markov process (multipath and the atmosphere's delays change over about a
+  minute), so that a minute of fixes is not taken for 600 independent ones.
 """
 
 from __future__ import annotations
@@ -36,7 +39,8 @@ LOG_SCALE = 15
 MAP_ATTITUDE = slice(16, 19)
 MAP_POSITION = slice(19, 22)
 BARO_BIAS = 22
-ERROR_DIM = 23
+GPS_BIAS = slice(23, 26)
+ERROR_DIM = 26
 MAP_POSE = np.r_[16:22]  # what a jump in the visual poses (relocalisation, loop closure) leaves unknown
 MAP_STATES = np.r_[LOG_SCALE, 16:22]  # what a new visual map leaves unknown: its pose and its scale
 
@@ -80,6 +84,8 @@ class NavState:
     R_world_map: np.ndarray = field(default_factory=lambda: np.eye(3))
     t_world_map: np.ndarray = field(default_factory=lambda: np.zeros(3))
     baro_bias: float = 0.0  # baro altitude minus world z, m
+    gps_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))  # GPS fix minus truth, ENU, m
+    gps_bias_variance: np.ndarray | None = None  # its stationary variance per axis, from the first fused fix (None before)
     map_anchored: bool = False  # the visual map's pose in the world has been set from a visual pose
     baro_initialised: bool = False  # the barometer bias has been set from a first reading
     georeferenced: bool = False  # a GPS fix has been fused: the world is ENU at its origin
@@ -104,6 +110,7 @@ class NavState:
             R_world_map=so3_exp(dx[MAP_ATTITUDE]) @ self.R_world_map,
             t_world_map=self.t_world_map + dx[MAP_POSITION],
             baro_bias=self.baro_bias + float(dx[BARO_BIAS]),
+            gps_bias=self.gps_bias + dx[GPS_BIAS],
         )
 
     @staticmethod

@@ -38,6 +38,7 @@ from evp.fusion.nav_state import (
     ATTITUDE,
     BARO_BIAS,
     ERROR_DIM,
+    GPS_BIAS,
     GYRO_BIAS,
     LOG_SCALE,
     MAP_ATTITUDE,
@@ -119,7 +120,9 @@ def initial_covariance(s: NavigationSettings) -> np.ndarray:
     sigmas[MAP_ATTITUDE] = s.initial_map_attitude_sigma_rad
     sigmas[MAP_POSITION] = s.initial_map_position_sigma_m
     sigmas[BARO_BIAS] = s.initial_baro_bias_sigma_m
-    return np.diag(sigmas**2)
+    variances = sigmas**2
+    variances[GPS_BIAS] = (1.0 - s.gps_white_share) * GpsPosition(0.0, (0.0, 0.0, 0.0)).variances(s)  # until a fix gives its accuracy
+    return np.diag(variances)
 
 
 class NavigationFilter:
@@ -237,6 +240,12 @@ class NavigationFilter:
         P[IMU_DIM:, :IMU_DIM] = P[:IMU_DIM, IMU_DIM:].T
         P[IMU_DIM:, IMU_DIM:] = P0[IMU_DIM:, IMU_DIM:]
         P[_DIAGONAL] += self._noise_per_second * dt
+        if state.gps_bias_variance is not None:  # the GPS error decays towards zero, its variance towards the stationary one
+            decay = math.exp(-dt / self.settings.gps_correlation_time_s)
+            state = replace(state, gps_bias=decay * state.gps_bias)
+            P[GPS_BIAS, :] *= decay
+            P[:, GPS_BIAS] *= decay
+            P[GPS_BIAS, GPS_BIAS] += np.diag(state.gps_bias_variance * (1.0 - decay * decay))
         return _Node(imu, state, P)
 
     # --- updates -------------------------------------------------------------------------------
@@ -276,17 +285,36 @@ class NavigationFilter:
         self._replay(index)
         return True
 
-    def move_world(self, R: np.ndarray, t: np.ndarray, pivot: np.ndarray, translation_sigma_m: float, yaw_sigma_rad: float) -> None:
+    def move_world(
+        self,
+        R: np.ndarray,
+        t: np.ndarray,
+        pivot: np.ndarray,
+        translation_sigma_m: float | np.ndarray,
+        yaw_sigma_rad: float,
+        gps_bias_variance: np.ndarray | None = None,
+    ) -> None:
         """Re-express every state of the history in a new world, ``x_new = R x + t`` (``R`` a
         heading about z: the world turned to ENU once GPS gave the heading; georeferenced from
-        then on), and add the new
-        frame's uncertainty: a translation (``translation_sigma_m`` per axis) and a heading error
-        about ``pivot`` (new world), each moving the body and the visual map together."""
+        then on), and add the new frame's uncertainty: a translation (``translation_sigma_m`` per
+        axis, or one for each) and a heading error about ``pivot`` (new world), each moving the
+        body and the visual map together. ``gps_bias_variance`` (per ENU axis), when the new frame
+        was fitted to GPS fixes: they share the receiver's correlated error, which moves the frame
+        by as much as it moves the fixes, so the GPS error state starts here at that variance,
+        tied to the translation (a fix then agrees with the moved position until the error has
+        had time to change: only that tells the frame's error from the receiver's)."""
         R, t, pivot = np.asarray(R, float), np.asarray(t, float), np.asarray(pivot, float)
+        translation_variance = np.broadcast_to(np.square(np.asarray(translation_sigma_m, float)), (3,))
         rotate = np.eye(ERROR_DIM)
         for block in (POSITION, VELOCITY, MAP_ATTITUDE, MAP_POSITION):  # world-frame errors; the body attitude's is local
             rotate[block, block] = R
         up = np.array([0.0, 0.0, 1.0])
+        shift = np.zeros((ERROR_DIM, 3))  # the errors a translation of the new frame makes
+        shift[POSITION] = np.eye(3)
+        shift[MAP_POSITION] = np.eye(3)
+        shift[BARO_BIAS, 2] = -1.0
+        shared = shift.copy()  # ... and the receiver's error that made it: the fixes moved with it
+        shared[GPS_BIAS] = -np.eye(3)
         for node in self._history:
             x = node.state
             x = replace(
@@ -305,11 +333,13 @@ class NavigationFilter:
             yaw[ATTITUDE] = x.R_world_body.T @ up
             yaw[MAP_ATTITUDE] = up
             yaw[MAP_POSITION] = np.cross(up, x.t_world_map - pivot)
-            shift = np.zeros((ERROR_DIM, 3))  # ... and a translation of it
-            shift[POSITION] = np.eye(3)
-            shift[MAP_POSITION] = np.eye(3)
-            shift[BARO_BIAS, 2] = -1.0
-            P = rotate @ node.covariance @ rotate.T + yaw_sigma_rad**2 * np.outer(yaw, yaw) + translation_sigma_m**2 * shift @ shift.T
+            P = rotate @ node.covariance @ rotate.T + yaw_sigma_rad**2 * np.outer(yaw, yaw) + shift @ np.diag(translation_variance) @ shift.T
+            if gps_bias_variance is not None:
+                variance = np.asarray(gps_bias_variance, float)
+                P[GPS_BIAS, :] = 0.0
+                P[:, GPS_BIAS] = 0.0
+                P += shared @ np.diag(variance) @ shared.T
+                x = replace(x, gps_bias=np.zeros(3), gps_bias_variance=variance)
             node.state, node.covariance = x, 0.5 * (P + P.T)
 
     def _node_index(self, t: float) -> int | None:
@@ -352,6 +382,8 @@ class NavigationFilter:
             x, P = self._anchor_map(x, P, measurement)
         elif isinstance(measurement, BaroAltitude) and not x.baro_initialised and math.isfinite(measurement.altitude_m):
             x = replace(x, baro_bias=measurement.altitude_m - x.position[2], baro_initialised=True)
+        elif isinstance(measurement, GpsPosition) and x.gps_bias_variance is None:
+            x, P = self._start_gps_error(x, P, measurement)
         lin = measurement.linearise(x, imu_vectors(node.imu)[0], self.settings)
         if isinstance(lin, Refusal):
             return Innovation(measurement.timestamp, measurement.kind, UpdateStatus.REFUSED, message=lin.reason), x, P
@@ -368,6 +400,16 @@ class NavigationFilter:
         if isinstance(measurement, GpsPosition):
             x = replace(x, georeferenced=True)
         return innovation, x, P
+
+    def _start_gps_error(self, x: NavState, P: np.ndarray, fix: GpsPosition) -> tuple[NavState, np.ndarray]:
+        """The GPS error state at the first fix: zero, uncorrelated, at the stationary variance of
+        the correlated part of this fix's accuracy (a receiver reports one accuracy for a run)."""
+        variance = (1.0 - self.settings.gps_white_share) * fix.variances(self.settings)
+        P = P.copy()
+        P[GPS_BIAS, :] = 0.0
+        P[:, GPS_BIAS] = 0.0
+        P[GPS_BIAS, GPS_BIAS] = np.diag(variance)
+        return replace(x, gps_bias=np.zeros(3), gps_bias_variance=variance), P
 
     def _anchor_map(self, x: NavState, P: np.ndarray, pose: VisualPose) -> tuple[NavState, np.ndarray]:
         """Set the visual map's world pose so that ``pose`` agrees with the current body estimate;

@@ -12,7 +12,10 @@ starts from the alignment at that frame, the IMU drives it, each tracked pose is
 :class:`~evp.fusion.measurements.VisualPose` update, and each estimate leaves with the filter's
 metric camera pose, its 6x6 covariance and the flags (the estimator's pose kept in
 ``T_visual_cam``). A change of the estimator's reset counter is a jump of the visual poses, not
-motion: a relocalisation keeps the map's scale, a new map (SLAM restarted) forgets it.
+motion: a relocalisation keeps the map's scale, a new map (SLAM restarted) forgets it. A jump the
+estimator does not count (a loop correction) shows as visual poses the filter's gate refuses: once
+it has refused all of them for ``visual_jump_reset_s``, the map's pose is re-anchored as after a
+relocalisation (``visual_jump`` warning).
 
 GPS (``use_gps``): the first fix with a lock is the take-off point, the origin of the ENU frame
 its fixes are converted to. The filter starts from vision and the IMU only (GPS alone does not
@@ -51,7 +54,7 @@ from evp.fusion.geodesy import EnuFrame
 from evp.fusion.gps_heading import WorldAlignment, align_to_gps, horizontal_spread
 from evp.fusion.gps_monitor import GpsMonitor, GpsTrust
 from evp.fusion.inertial_refinement import refine_inertial
-from evp.fusion.innovation import Innovation
+from evp.fusion.innovation import Innovation, UpdateStatus
 from evp.fusion.map_georeference import MapGeoreference
 from evp.fusion.measurements import BaroAltitude, GpsPosition, RangeHeight, VisualPose, WheelSpeed, YawRate
 from evp.fusion.nav_state import ATTITUDE, ERROR_DIM, LOG_SCALE, MAP_ATTITUDE, MAP_POSITION, POSITION, VELOCITY, NavState, skew3
@@ -106,7 +109,7 @@ class NavigationRecord:
 @dataclass(frozen=True)
 class Notice:
     """Something the operator should hear of, as it happens: ``code`` names it (the filter's
-    ``imu_not_finite`` / ``imu_out_of_order`` / ``imu_gap``, ``gps_no_lock``, the GPS monitor's
+    ``imu_not_finite`` / ``imu_out_of_order`` / ``imu_gap``, ``gps_no_lock``, ``visual_jump``, the GPS monitor's
     ``spoofing_alarm`` / ``gps_lost`` / ``gps_back`` / ``trust_restored``, and the ``info``
     milestones ``navigation_started`` / ``georeferenced``)."""
 
@@ -185,6 +188,7 @@ class NavigationStage:
         self._last_fix_position: np.ndarray | None = None
         self.alignment_progress: AlignmentProgress | None = None  # None until a fix is paired with the running filter
         self.last_tracking_state = TrackingState.NOT_INITIALIZED
+        self._gated_since: float | None = None  # the first of the visual poses the gate has refused in a row
         self.world_changes = 0  # jumps of the output frame: the filter's start (map units to metres) and the turn to ENU
         self._ahead: tuple[NavState, NavState, ImuSample] | None = None  # (filter state, it carried ahead, last sample): predict's cache
         self.map_georeference = map_georeference  # the saved map's, until the filter starts from it (or SLAM leaves the map)
@@ -300,10 +304,18 @@ class NavigationStage:
         sigma = accuracy if math.isfinite(accuracy) and accuracy > 0 else self.settings.gps_default_sigma_m
         enu = np.array([e for _, e in self._gps_pairs])
         alignment = align_to_gps(local, enu, sigma)
-        residual = float(np.sqrt(np.mean(np.sum(((local @ alignment.R.T + alignment.t) - enu)[:, :2] ** 2, axis=1))))
+        residuals = (local @ alignment.R.T + alignment.t) - enu
+        residual = float(np.sqrt(np.mean(np.sum(residuals[:, :2] ** 2, axis=1))))
         self.alignment_progress = replace(self.alignment_progress, model=ALIGNMENT_MODEL, residual_m=residual)
         self.world_changes += 1
-        self.filter.move_world(alignment.R, alignment.t, alignment.pivot, alignment.translation_sigma_m, alignment.yaw_sigma_rad)
+        # the receiver's correlated error moved the fit as much as the fixes: the filter's GPS
+        # error state takes it; what the fit's residual shows of the track's own distortion
+        # (its scale still settling) is the translation's doubt beside it, per axis
+        fix_error = GpsPosition(fix.timestamp, tuple(enu[-1]), fix.horizontal_accuracy_m, fix.vertical_accuracy_m).variances(self.settings)
+        distortion = np.sqrt(np.mean(residuals**2, axis=0))
+        self.filter.move_world(
+            alignment.R, alignment.t, alignment.pivot, distortion, alignment.yaw_sigma_rad, (1.0 - self.settings.gps_white_share) * fix_error
+        )
         if self._ground_height_m is not None:
             self._ground_height_m += float(alignment.t[2])
         self._last_fix_position = alignment.R @ self._last_fix_position + alignment.t
@@ -350,11 +362,30 @@ class NavigationStage:
             events = len(self.gps_monitor.events)
             self.gps_monitor.check_outage(estimate.timestamp)
             self._tell_monitor_events(events)
-        visual = self._update(VisualPose(estimate.timestamp, estimate.T_world_cam, self.T_body_cam)) if tracked else None
+        visual = self._visual_update(estimate) if tracked else None
         output = self.filter.output(self.T_body_cam)
         self.records.append(NavigationRecord(output, visual))
         self.last_tracking_state = estimate.tracking_state
         return replace(estimate, T_world_cam=output.T_world_cam, T_visual_cam=estimate.T_world_cam, **self._fused_fields(output))
+
+    def _visual_update(self, estimate: PoseEstimate) -> Innovation:
+        """The tracked pose fused; once the gate has refused every pose for
+        ``visual_jump_reset_s``, the visual map jumped without the estimator saying so (a loop
+        correction): the map's pose is re-anchored at this one, its scale kept."""
+        pose = VisualPose(estimate.timestamp, estimate.T_world_cam, self.T_body_cam)
+        innovation = self._update(pose)
+        if innovation.status is not UpdateStatus.GATED:
+            self._gated_since = None
+            return innovation
+        if self._gated_since is None:
+            self._gated_since = estimate.timestamp
+        if estimate.timestamp - self._gated_since < self.settings.visual_jump_reset_s:
+            return innovation
+        self._gated_since = None
+        self.filter.reset_visual_map(estimate.timestamp, keep_scale=True)
+        text = f"visual poses refused since {estimate.timestamp - self.settings.visual_jump_reset_s:.3f} s: the visual map jumped; its pose re-anchored at {estimate.timestamp:.3f} s"
+        self._warn(estimate.timestamp, "visual_jump", text)
+        return self._update(pose)
 
     def _fused_fields(self, output: NavigationOutput) -> dict:
         """What a fused estimate takes from the filter besides its pose."""

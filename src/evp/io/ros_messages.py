@@ -89,7 +89,7 @@ def gps_to_msg(store, fix: GpsFix, frame_id: str = "gps"):
         latitude=fix.latitude_deg,
         longitude=fix.longitude_deg,
         altitude=fix.altitude_m,
-        position_covariance=np.diag([h * h, h * h, v * v]).reshape(-1),
+        position_covariance=np.diag([h * h / 2, h * h / 2, v * v]).reshape(-1),  # the horizontal accuracy is both axes' RMS
         position_covariance_type=2 if known else 0,
     )
 
@@ -154,7 +154,7 @@ def msg_to_gps(msg) -> GpsFix | None:
         return None
     cov = np.asarray(msg.position_covariance, dtype=float)
     known = msg.position_covariance_type > 0
-    h = math.sqrt(max(cov[0], cov[4])) if known else float("nan")
+    h = math.sqrt(cov[0] + cov[4]) if known else float("nan")  # both axes' RMS (GpsFix)
     v = math.sqrt(cov[8]) if known else float("nan")
     return GpsFix(stamp_seconds(msg.header), msg.latitude, msg.longitude, msg.altitude, h, v)
 

@@ -7,6 +7,7 @@ seconds; tests/cli/test_app.py checks the same entry point as a real subprocess.
 
 from __future__ import annotations
 
+import shutil
 import socket
 import sys
 from pathlib import Path
@@ -17,6 +18,7 @@ import pytest
 
 from evp.cli.app import main
 from evp.errors import ExitCode
+from evp.io.trajectory import read_trajectory
 from tests.conftest import SAMPLE
 
 
@@ -86,11 +88,31 @@ def test_datasets_that_are_near_misses_say_what_is_missing(monkeypatch, capsys, 
         image_folder: "a folder of 3 images needs their times: times.txt",
         others: "no images, video or recording here (its 2 files end .csv, .txt)",
     }
+    tagged = tmp_path / "tags"  # apriltag_real_images: images/ beside a table with a header row
+    shutil.copytree(image_folder, tagged / "images")
+    (tagged / "rotation_reference.csv").write_text("file,ref_tag_yaw_deg\n000.png,0\n")
+    expected[tagged] = "a folder of 3 images needs their times"
+    expected[GT] = "no camera frames to run on: only trajectories here; compare two with evp eval REF EST"
     for path, message in expected.items():
         code, err = evp_main(monkeypatch, capsys, "run", path, "--out", tmp_path / "out")
         assert code == ExitCode.DATA
         assert message in one_line_error(err)
     assert "--camera FILE|PROFILE" in evp_main(monkeypatch, capsys, "info", image_folder)[1]
+
+
+def test_a_recording_without_images_says_what_it_holds_and_what_runs_it(tmp_path):
+    from evp.io.dataset import CAMERALESS_BENCH, Dataset
+    from evp.types import WheelOdometry
+
+    robot = Dataset("labyrinth", "tuc-labyrinth", tmp_path, wheel=[WheelOdometry(0.0, (0.1, 0.1))], ground_truth=read_trajectory(GT))
+    reason = robot.no_frames_reason()
+    assert "this tuc-labyrinth recording holds wheel odometry and ground truth" in reason and CAMERALESS_BENCH in reason
+    assert (Path(__file__).parents[2] / CAMERALESS_BENCH.split()[-1]).is_file()
+
+
+def test_a_misspelt_format_names_the_nearest(monkeypatch, capsys):
+    code, err = evp_main(monkeypatch, capsys, "info", SAMPLE, "--format", "kitty")
+    assert code == ExitCode.USAGE and "--format 'kitty': no such dataset format; did you mean kitti?" in one_line_error(err)
 
 
 def test_settings_typo_names_the_nearest_key(monkeypatch, capsys, tmp_path):
@@ -126,3 +148,28 @@ def test_serve_on_a_busy_port_fails_before_its_banner_or_certificate(monkeypatch
     assert f"--port {port}: is in use" in one_line_error(err)
     assert not (tmp_path / "station").exists()
     assert capsys.readouterr().out == ""
+
+
+@pytest.mark.parametrize(
+    ("option", "expected"),
+    [
+        (("--cafile", "{tmp}/cert.pem"), "--cafile {tmp}/cert.pem: no such file; copy the station's <data>/tls/cert.pem"),
+        (("--fingerprint", "AB:CD"), "--fingerprint AB:CD: expected the SHA-256 fingerprint as the operator page shows it"),
+    ],
+)
+def test_stream_trust_options_are_checked_before_connecting(monkeypatch, capsys, tmp_path, option, expected):
+    """A missing cert.pem was a traceback (websockets' lazily loaded exceptions module); a
+    mangled fingerprint was blamed on the link."""
+    pytest.importorskip("websockets")
+    args = [a.format(tmp=tmp_path) for a in option]
+    code, err = evp_main(monkeypatch, capsys, "stream", SAMPLE, "--url", "wss://127.0.0.1:9", *args)
+    assert code == ExitCode.USAGE
+    assert expected.format(tmp=tmp_path) in one_line_error(err)
+
+
+def test_stream_with_an_unreadable_certificate_is_one_line(monkeypatch, capsys, tmp_path):
+    pytest.importorskip("websockets")
+    (tmp_path / "cert.pem").write_text("")  # failed in the TLS setup, before websockets had loaded its exceptions
+    code, err = evp_main(monkeypatch, capsys, "stream", SAMPLE, "--url", "wss://127.0.0.1:9", "--cafile", tmp_path / "cert.pem")
+    assert code == ExitCode.LINK
+    assert "cannot connect to wss://127.0.0.1:9" in one_line_error(err)

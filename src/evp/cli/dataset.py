@@ -76,7 +76,7 @@ def run(
         settings = settings.model_copy(update={"slam": settings.slam.model_copy(update={"map": str(saved_map)})})
     dataset = open_dataset(dataset_path, fmt)
     if dataset.num_frames == 0:
-        raise DatasetError(dataset_path, f"no camera frames to run on ({dataset.format})")
+        raise DatasetError(dataset_path, dataset.no_frames_reason())
     echo_warnings(dataset)
     settings = resolve_settings(settings, dataset)  # settings.yaml then names what ran
     if dataset.imu and (unfused := navigation_off(dataset, settings)) is not None:

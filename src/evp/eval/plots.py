@@ -71,7 +71,7 @@ def plot_error_over_time(result: EvaluationResult, path: Path) -> Path:
         value = float(np.sqrt(np.mean(errors**2))) if name == "rmse" else float(getattr(np, name)(errors))
         ax.axhline(value, ls=style, color="tab:red" if name == "rmse" else "0.3", lw=1.0, label=f"{name} {value:.4g} m")
     ax.fill_between(t, np.mean(errors) - np.std(errors), np.mean(errors) + np.std(errors), color="0.8", alpha=0.5, label="std")
-    ax.set_xlabel("time (s)")
+    ax.set_xlabel("frame (no times given)" if result.frame_indexed else "time (s)")
     ax.set_ylabel("APE translation (m)")
     ax.legend(loc="upper left", fontsize=8)
     ax.grid(alpha=0.3)
@@ -86,6 +86,7 @@ def plot_histogram(result: EvaluationResult, path: Path) -> Path:
     ax.set_ylabel("poses")
     ax.grid(alpha=0.3)
     readable_axes(ax)
+    ax.yaxis.set_major_locator(MaxNLocator(7, integer=True))  # counts of poses: no 2.5
     return _save(fig, path)
 
 

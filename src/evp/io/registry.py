@@ -14,7 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Protocol
 
-from evp.errors import AmbiguousFormatError, UnknownFormatError
+from evp.errors import AmbiguousFormatError, UnknownFormatError, UsageError
 from evp.io.dataset import Dataset
 
 
@@ -36,10 +36,15 @@ def readers() -> list[DatasetReader]:
 
 
 def reader_by_name(name: str) -> DatasetReader:
+    """The reader ``--format NAME`` names; a misspelt name is a usage error naming the nearest."""
+    from difflib import get_close_matches
+
+    names = [reader.name for reader in readers()]
     for reader in readers():
         if reader.name == name:
             return reader
-    raise UnknownFormatError(f"unknown dataset format {name!r}; known: {', '.join(r.name for r in readers())}")
+    close = get_close_matches(name, names, n=1, cutoff=0.6)
+    raise UsageError(f"--format {name!r}: no such dataset format; " + (f"did you mean {close[0]}? " if close else "") + f"known: {', '.join(names)}")
 
 
 def detect_reader(path: str | Path) -> DatasetReader:

@@ -75,13 +75,13 @@ def detect_trajectory_format(path: Path) -> TrajectoryFormat:
     number, first = lines[0]
     if first.replace(" ", "").lower().startswith(CSV_HEADER):
         return TrajectoryFormat.CSV
-    if "," in first:
-        return TrajectoryFormat.EUROC
-    fields = first.split()
+    fields = first.split(",") if "," in first else first.split()
     try:
         float(fields[0])
-    except ValueError:  # a label such as KITTI calib.txt's "P0:": not poses
+    except ValueError:  # a label such as KITTI calib.txt's "P0:", or another table's header: not poses
         raise TrajectoryFormatError(path, f"not a trajectory: the first value {fields[0]!r} is not a number", line=number) from None
+    if "," in first:
+        return TrajectoryFormat.EUROC
     count = len(fields)
     if count == 8:
         return TrajectoryFormat.TUM

@@ -173,3 +173,18 @@ def test_stream_with_an_unreadable_certificate_is_one_line(monkeypatch, capsys, 
     code, err = evp_main(monkeypatch, capsys, "stream", SAMPLE, "--url", "wss://127.0.0.1:9", "--cafile", tmp_path / "cert.pem")
     assert code == ExitCode.LINK
     assert "cannot connect to wss://127.0.0.1:9" in one_line_error(err)
+
+
+def test_a_standing_camera_is_told_from_its_ground_truth(tmp_path):
+    """EuRoC V1_01's first 1.45 s: the MAV on the ground, 2 mm of ground-truth motion, nothing tracked."""
+    from evp.io.dataset import Dataset
+    from evp.types import Trajectory
+
+    times = np.arange(30) / 20.0
+    positions = np.zeros((40, 3))
+    positions[20:, 2] = 0.002  # settles by 2 mm while the frames run, then flies off after them
+    positions[35:, 0] = 5.0
+    standing = Trajectory(positions, np.tile([0.0, 0.0, 0.0, 1.0], (40, 1)), np.arange(40) / 20.0)
+    dataset = Dataset("still", "euroc", tmp_path, None, times, ground_truth=standing)
+    assert dataset.ground_truth_excursion() == pytest.approx(0.002)
+    assert Dataset("no truth", "video", tmp_path, None, times).ground_truth_excursion() is None

@@ -100,6 +100,19 @@ class Dataset:
         }
         return {name: count for name, count in counts.items() if count}
 
+    def ground_truth_excursion(self) -> float | None:
+        """How far (m) the ground truth gets from where it was at the first frame while the frames
+        run: what tells a camera that stood still (EuRoC V1_01's first seconds: 2 mm) from one
+        the estimator failed on; None without timed ground truth over the frames."""
+        truth = self.ground_truth
+        if truth is None or truth.timestamps is None or self.num_frames == 0:
+            return None
+        during = (truth.timestamps >= self.frame_times[0]) & (truth.timestamps <= self.frame_times[-1])
+        if not during.any():
+            return None
+        positions = truth.positions[during]
+        return float(np.linalg.norm(positions - positions[0], axis=1).max())
+
     def no_frames_reason(self) -> str:
         """Why ``evp run`` cannot run here, for a recording without images (comma2k19's segment,
         the wheel robots, trajectory files): what it holds instead, and what puts that to use."""

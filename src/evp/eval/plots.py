@@ -89,7 +89,7 @@ def plot_trajectory(trajectory: Trajectory, path: Path, metric: bool, plane_choi
 def plot_error_over_time(result: EvaluationResult, path: Path) -> Path:
     errors = result.ape_translation
     t = result.ref.timestamps - result.ref.timestamps[0]
-    fig, ax = plt.subplots(figsize=(7.0, 3.6))
+    fig, ax = plt.subplots(figsize=(8.2, 3.6))
     ax.plot(t, errors, color="tab:blue", lw=1.0, label="APE")
     for name, style in (("rmse", "-"), ("mean", "--"), ("median", ":")):
         value = float(np.sqrt(np.mean(errors**2))) if name == "rmse" else float(getattr(np, name)(errors))
@@ -97,7 +97,7 @@ def plot_error_over_time(result: EvaluationResult, path: Path) -> Path:
     ax.fill_between(t, np.mean(errors) - np.std(errors), np.mean(errors) + np.std(errors), color="0.8", alpha=0.5, label="std")
     ax.set_xlabel("frame (no times given)" if result.frame_indexed else "time (s)")
     ax.set_ylabel("APE translation (m)")
-    ax.legend(loc="upper left", fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)  # beside the curve, never over it
     ax.grid(alpha=0.3)
     readable_axes(ax)
     return _save(fig, path)

@@ -188,3 +188,12 @@ def test_a_standing_camera_is_told_from_its_ground_truth(tmp_path):
     dataset = Dataset("still", "euroc", tmp_path, None, times, ground_truth=standing)
     assert dataset.ground_truth_excursion() == pytest.approx(0.002)
     assert Dataset("no truth", "video", tmp_path, None, times).ground_truth_excursion() is None
+
+
+def test_info_on_kitti_poses_without_times_says_so(monkeypatch, capsys, tmp_path):
+    (tmp_path / "poses.txt").write_text("".join(f"1 0 0 {i} 0 1 0 0 0 0 1 0\n" for i in range(5)))
+    monkeypatch.setattr(sys, "argv", ["evp", "info", str(tmp_path / "poses.txt")])
+    with pytest.raises(SystemExit) as exited:
+        main()
+    assert not exited.value.code
+    assert "ground truth: 5 poses, no times (KITTI poses: evp eval takes --ref-times/--est-times)" in capsys.readouterr().out

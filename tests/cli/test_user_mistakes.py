@@ -197,3 +197,23 @@ def test_info_on_kitti_poses_without_times_says_so(monkeypatch, capsys, tmp_path
         main()
     assert not exited.value.code
     assert "ground truth: 5 poses, no times (KITTI poses: evp eval takes --ref-times/--est-times)" in capsys.readouterr().out
+
+
+def test_a_folder_inside_a_dataset_names_the_dataset(monkeypatch, capsys, tmp_path):
+    """KITTI's image_0 or EuRoC's mav0/cam0 given for the dataset: 'a folder of 51 images needs
+    their times', or for cam0 a EuRoC data.csv read as a trajectory ('expected 8 or 9 or ... 39')."""
+    from tests.io import builders
+
+    root = builders.make_kitti(tmp_path / "kitti")
+    (root / "image_0" / "data.csv").write_text("#timestamp [ns],filename\n1403636579763555584,1403636579763555584.png\n")
+    code, err = evp_main(monkeypatch, capsys, "run", root / "image_0", "--out", tmp_path / "out")
+    assert code == ExitCode.DATA
+    assert one_line_error(err).endswith(f"image_0: a part of the kitti dataset {root}; give that folder")
+
+
+def test_a_csv_of_the_wrong_width_says_the_range_it_takes(tmp_path):
+    from evp.errors import TrajectoryFormatError
+
+    (tmp_path / "data.csv").write_text("#timestamp [ns],filename\n1403636579763555584,1403636579763555584.png\n")
+    with pytest.raises(TrajectoryFormatError, match="line 2: expected 8 to 39 values, found 2"):
+        read_trajectory(tmp_path / "data.csv")

@@ -55,6 +55,8 @@ def detect_reader(path: str | Path) -> DatasetReader:
     if not path.exists():
         raise UnknownFormatError(f"{path}: no such file or folder")
     for candidates in (READERS, FALLBACK_READERS):
+        if candidates is FALLBACK_READERS and path.is_dir():
+            refuse_a_part_of_a_dataset(path)  # mav0/cam0's data.csv is no trajectory to show
         matches = [reader for reader in candidates if reader.detect(path)]
         if len(matches) > 1:
             found = " and ".join(f"{r.name} ({r.looks_for})" for r in matches)
@@ -63,6 +65,21 @@ def detect_reader(path: str | Path) -> DatasetReader:
         if matches:
             return matches[0]
     raise UnknownFormatError(f"{path}: {what_is_missing(path)}")
+
+
+# how far up a folder given by mistake can be from its dataset's root: EuRoC's mav0/cam0/data is 3
+MAX_DATASET_DEPTH = 3
+
+
+def refuse_a_part_of_a_dataset(folder: Path) -> None:
+    """A folder inside a dataset that a reader recognises (EuRoC's mav0/cam0, KITTI's image_0,
+    the sample's images/) is refused with the dataset's root, which is what to give."""
+    from evp.io.readers import READERS
+
+    for parent in list(folder.absolute().parents)[:MAX_DATASET_DEPTH]:
+        for reader in READERS:
+            if reader.detect(parent):
+                raise UnknownFormatError(f"{folder}: a part of the {reader.name} dataset {parent}; give that folder")
 
 
 def what_is_missing(path: Path) -> str:

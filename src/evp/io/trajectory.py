@@ -51,7 +51,11 @@ def _parse_rows(path: Path, lines: list[tuple[int, str]], separator: str | None,
         if width is None:
             width = len(fields)
             if width not in columns:
-                raise TrajectoryFormatError(path, f"expected {' or '.join(map(str, sorted(columns)))} values, found {width}", line=number)
+                counts = sorted(columns)
+                expected = (
+                    f"{counts[0]} to {counts[-1]}" if len(counts) > 2 and counts == list(range(counts[0], counts[-1] + 1)) else " or ".join(map(str, counts))
+                )
+                raise TrajectoryFormatError(path, f"expected {expected} values, found {width}", line=number)
         elif len(fields) != width:
             raise TrajectoryFormatError(path, f"expected {width} values like the first row, found {len(fields)}", line=number)
         try:

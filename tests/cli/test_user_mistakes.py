@@ -217,3 +217,15 @@ def test_a_csv_of_the_wrong_width_says_the_range_it_takes(tmp_path):
     (tmp_path / "data.csv").write_text("#timestamp [ns],filename\n1403636579763555584,1403636579763555584.png\n")
     with pytest.raises(TrajectoryFormatError, match="line 2: expected 8 to 39 values, found 2"):
         read_trajectory(tmp_path / "data.csv")
+
+
+def test_a_flight_shorter_than_the_alignment_phase_says_how_to_shorten_it():
+    """evp align on an 8 s simulated flight: the default phase (70 s after the target altitude) outlasts it."""
+    from types import SimpleNamespace
+
+    from evp.eval.flight_report import flight_summary
+    from evp.fusion.gps_input import AlignmentError
+
+    short = SimpleNamespace(errors_m=np.zeros(0), alignment=SimpleNamespace(window=(105.5, 175.5)), gps=SimpleNamespace(times=np.array([100.0, 108.0])))
+    with pytest.raises(AlignmentError, match=r"phase \(5.5..75.5 s after the first fix\).*--align-fraction 0.33"):
+        flight_summary(short)

@@ -66,6 +66,7 @@ GT = SAMPLE / "groundtruth.txt"
         (("eval", GT, GT, "--json", "{tmp}"), "--json {tmp}: is a folder, and a file name is needed here, e.g."),
         (("calibrate", "{images}", "--cols", "9", "--rows", "7", "--square", "0.02", "--out", "{file}/camera.yaml"), "is a file, so nothing"),
         (("align", SAMPLE, "--out", "{file}"), "--out {file}: is a file"),
+        (("align", SAMPLE, "--align-fraction", "1.5"), "--align-fraction 1.5: give a fraction between 0 and 1"),
         (("convert", GT, "{tmp}"), "DST {tmp}: is a folder"),
     ],
 )

@@ -67,6 +67,7 @@ GT = SAMPLE / "groundtruth.txt"
         (("calibrate", "{images}", "--cols", "9", "--rows", "7", "--square", "0.02", "--out", "{file}/camera.yaml"), "is a file, so nothing"),
         (("align", SAMPLE, "--out", "{file}"), "--out {file}: is a file"),
         (("align", SAMPLE, "--align-fraction", "1.5"), "--align-fraction 1.5: give a fraction between 0 and 1"),
+        (("sweep", SAMPLE, "--set", "orb.n_features=500", "--out", "{file}"), "--out {file}: is a file"),
         (("convert", GT, "{tmp}"), "DST {tmp}: is a folder"),
     ],
 )

@@ -231,3 +231,12 @@ def test_a_flight_shorter_than_the_alignment_phase_says_how_to_shorten_it():
     short = SimpleNamespace(errors_m=np.zeros(0), alignment=SimpleNamespace(window=(105.5, 175.5)), gps=SimpleNamespace(times=np.array([100.0, 108.0])))
     with pytest.raises(AlignmentError, match=r"phase \(5.5..75.5 s after the first fix\).*--align-fraction 0.33"):
         flight_summary(short)
+
+
+def test_a_corrupt_video_is_one_line_without_ffmpegs_log(tmp_path):
+    from tests.cli.conftest import evp
+
+    (tmp_path / "flight.mp4").write_bytes(np.random.default_rng(0).integers(0, 256, 5000, dtype=np.uint8).tobytes())
+    result = evp("info", tmp_path / "flight.mp4")
+    assert result.returncode == ExitCode.DATA
+    assert one_line_error(result.stderr).endswith("flight.mp4: cannot open video (unsupported codec or corrupt file)")

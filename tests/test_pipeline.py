@@ -36,6 +36,9 @@ def test_sample_run_tracks_and_is_accurate(tmp_path):
     for name in ("trajectory.tum", "states.csv", "timing.json", "metrics.json", "settings.yaml", "plots/top_view.png"):
         assert (tmp_path / name).is_file()
     assert len(json.loads((tmp_path / "timing.json").read_text())["tracking_ms"]) == 87
+    dataset.ground_truth = None  # a video without ground truth: its track is still drawn, in map units
+    write_outputs(result, dataset, resolve_settings(Settings(), dataset), tmp_path / "no_truth")
+    assert sorted(p.name for p in (tmp_path / "no_truth" / "plots").iterdir()) == ["trajectory.png"]
 
 
 def test_run_is_deterministic():

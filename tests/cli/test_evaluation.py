@@ -5,8 +5,10 @@ import json
 import numpy as np
 import yaml
 
+from evp.cli.evaluation import evaluate_files
 from evp.config import EvalSettings
 from evp.errors import ExitCode
+from evp.eval.report import markdown_summary
 from evp.io.trajectory import read_trajectory, write_trajectory
 from evp.types import Trajectory
 from tests.cli.conftest import evp
@@ -56,6 +58,12 @@ def test_eval_n_align_and_kitti_times(tmp_path):
     result = evp("eval", tmp_path / "gt.txt", tmp_path / "est.txt", "--align", "se3", "--n-align", "3", "--json", tmp_path / "m.json")
     assert result.returncode == 0, result.stderr
     assert json.loads((tmp_path / "m.json").read_text())["max"] > 0.5
+    assert "matched poses 10 by frame number (no times" in result.stdout  # frame numbers, not seconds
+    result = evaluate_files(tmp_path / "gt.txt", tmp_path / "est.txt", EvalSettings(max_time_diff_s=0.01))
+    assert result.frame_indexed and "by frame number" in markdown_summary(result, "gt", "est")
+    assert not evaluate_files(
+        tmp_path / "gt.txt", tmp_path / "est.txt", EvalSettings(max_time_diff_s=0.01), tmp_path / "times.txt", tmp_path / "times.txt"
+    ).frame_indexed
     tum = evp("convert", tmp_path / "gt.txt", tmp_path / "gt.tum", "--to", "tum", "--times", tmp_path / "times.txt")
     assert tum.returncode == 0, tum.stderr
     mixed = evp("eval", tmp_path / "gt.tum", tmp_path / "est.txt")

@@ -33,6 +33,7 @@ def test_the_shipped_vocabulary_is_built_from_evps_renders_by_a_deterministic_bu
 def test_a_vocabulary_from_a_recording_and_its_description(tmp_path):
     result = evp("vocabulary", "build", SAMPLE, "--every", "10", "--depth", "2", "--out", tmp_path / "v.npz")
     assert result.returncode == 0, result.stderr
+    assert result.stdout.startswith(f"{tmp_path / 'v.npz'}: ") and "extracting ORB features: 9 images" in result.stderr  # progress off stdout
     vocabulary = load_vocabulary(tmp_path / "v.npz")
     assert 10 < vocabulary.n_words <= 100 and vocabulary.notes["images"] == 9  # frames 0, 10, ..., 80
     shown = evp("vocabulary", "info", tmp_path / "v.npz")

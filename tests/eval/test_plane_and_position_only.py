@@ -11,6 +11,7 @@ from evp.config import EvalSettings, Settings
 from evp.eval.evaluate import evaluate
 from evp.eval.plane import motion_plane
 from evp.eval.plots import write_plots
+from evp.eval.report import markdown_summary
 from evp.io.dataset import Dataset
 from evp.run_setup import resolve_settings
 from evp.types import Trajectory
@@ -29,6 +30,14 @@ def test_a_kitti_drive_is_drawn_in_x_z():
     assert motion_plane(_drive(up_axis=1).positions).name == "xz"
     assert motion_plane(_drive(up_axis=2).positions).name == "xy"
     assert motion_plane(_drive(up_axis=1).positions, "xy").name == "xy"  # the user's choice wins
+
+
+def test_a_straight_drive_is_seen_from_above_not_from_the_side():
+    t = np.linspace(0, 60, 51)
+    kitti = np.column_stack([-0.015 * t, -0.02 * t, t])  # KITTI 06's start: descends more than it swerves
+    assert motion_plane(kitti).name == "xz"
+    enu = np.column_stack([t, 0.01 * t, 0.02 * t])  # along east, climbing a little
+    assert motion_plane(enu).name == "xy"
 
 
 def test_a_tilted_path_uses_its_principal_plane():
@@ -60,3 +69,14 @@ def test_position_only_is_taken_from_the_dataset_and_the_file_header(tmp_path):
     assert says_position_only(path)
     path.write_text("0 0 0 0 0 0 0 1\n")
     assert not says_position_only(path)
+
+
+def test_a_straight_path_gets_no_rotation_error_from_its_arbitrary_alignment(tmp_path):
+    t = np.linspace(0, 3, 40)
+    slider = Trajectory(np.column_stack([t, 0 * t, 0 * t]), np.tile([0.0, 0.0, 0.0, 1.0], (40, 1)), t, "slider")
+    est = Trajectory(2 * slider.positions + 0.3, Rotation.from_euler("x", 50, degrees=True).as_quat()[None].repeat(40, 0), t, "est")
+    result = evaluate(slider, est, EvalSettings(max_time_diff_s=0.01))
+    summary = result.summary()
+    assert result.alignment.degenerate and summary["reference_orientation"] is True
+    assert "ape_rotation_deg" not in summary and "rpe" in summary  # relative rotations need no alignment
+    assert "no APE rotation" in markdown_summary(result, "gt", "est") and "APE rotation (deg)" not in markdown_summary(result, "gt", "est")

@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from evp.errors import CalibrationError, DatasetError, TrajectoryFormatError, UnknownFormatError
+from evp.errors import CalibrationError, DatasetError, TrajectoryFormatError, UnknownFormatError, UsageError
 from evp.io.dataset import load_image
 from evp.io.registry import detect_reader, open_dataset
 from evp.io.telemetry_csv import read_telemetry_csv
@@ -198,8 +198,10 @@ def test_unknown_paths(tmp_path):
     (tmp_path / "notes" / "a.md").write_text("hello")
     with pytest.raises(UnknownFormatError, match="no images, video or recording here"):
         open_dataset(tmp_path / "notes")
-    with pytest.raises(UnknownFormatError, match="unknown dataset format"):
+    with pytest.raises(UsageError, match="no such dataset format; known: euroc"):
         open_dataset(tmp_path / "notes", "lidar-scans")
+    with pytest.raises(UsageError, match="did you mean kitti?"):
+        open_dataset(tmp_path / "notes", "kitty")
 
 
 def test_hostile_offline_input_is_one_specific_error_line(tmp_path):

@@ -103,6 +103,7 @@ def test_eval_and_locate_commands_on_a_uji_layout(tmp_path):
     config.write_text("wifi:\n  k_candidates: [1, 3]\n")
     result = evp("wifi", "eval", tmp_path, "--json", tmp_path / "wifi.json", "--config", config)
     assert result.returncode == 0, result.stderr
+    assert result.stdout.startswith("knn3 ") and "choosing k" in result.stderr  # stdout holds results only, progress goes to stderr
     scores = json.loads((tmp_path / "wifi.json").read_text())["methods"]
     assert set(scores) == {"knn3", "wknn_paper", "wknn_cv"}
     assert set(scores["knn3"]) == {"mean_error_m", "floor_accuracy", "unseen_points_mean_error_m", "per_set"} and "tst01" in scores["knn3"]["per_set"]
@@ -112,6 +113,8 @@ def test_eval_and_locate_commands_on_a_uji_layout(tmp_path):
     assert located.returncode == 0, located.stderr
     lines = [line for line in located.stdout.splitlines() if line]
     assert "not located" in lines[0] and lines[1].split()[3] == "0"
+    misplaced = evp("wifi", "eval", database / "trn01rss.csv")
+    assert misplaced.returncode == 3 and f"a file, and the folder holding the UJI sets is needed here: give {database}" in misplaced.stderr
 
 
 def test_uji_month_one_knn3_and_the_stronger_method():

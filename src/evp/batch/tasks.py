@@ -20,7 +20,7 @@ def run_dataset(dataset: str, overrides: dict, config: str | None = None, out: s
 
     data = open_dataset(Path(dataset))
     if data.num_frames == 0:
-        raise DatasetError(Path(dataset), f"no camera frames to run on ({data.format})")
+        raise DatasetError(Path(dataset), data.no_frames_reason())
     settings = resolve_settings(with_overrides(load_settings(config), overrides), data)
     result, navigation, estimator = estimate(data, settings)
     with tempfile.TemporaryDirectory(prefix="evp-sweep-") as scratch:

@@ -12,6 +12,9 @@ import os
 # bundled sample runs 22-27 % faster on one (docs/decisions.md). Set before NumPy loads OpenBLAS;
 # the station's and the batch engine's child processes inherit it.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# FFmpeg's own log (quiet, unless the user chose a level): a corrupt video printed "moov atom not
+# found" on stdout, beside EVP's one line on stderr that names the file and what to do (AV_LOG_QUIET = -8)
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
 
 from evp.cli.app import main  # noqa: E402
 

@@ -49,6 +49,8 @@ def align(
 
     writable_folder(out)
     writable_file(json_out, "--json", "metrics.json")
+    if align_fraction is not None and not 0 < align_fraction < 1:  # said before minutes of estimation, not after
+        raise UsageError(f"--align-fraction {align_fraction:g}: give a fraction between 0 and 1 (0.33: the first third of the GPS fixes)")
     settings = with_camera(load_settings(config), camera)
     if mode:
         try:

@@ -76,7 +76,7 @@ def run(
         settings = settings.model_copy(update={"slam": settings.slam.model_copy(update={"map": str(saved_map)})})
     dataset = open_dataset(dataset_path, fmt)
     if dataset.num_frames == 0:
-        raise DatasetError(dataset_path, f"no camera frames to run on ({dataset.format})")
+        raise DatasetError(dataset_path, dataset.no_frames_reason())
     echo_warnings(dataset)
     settings = resolve_settings(settings, dataset)  # settings.yaml then names what ran
     if dataset.imu and (unfused := navigation_off(dataset, settings)) is not None:
@@ -88,8 +88,10 @@ def run(
     echo_saved_map(metrics.get("saved_map"))
     if metrics["tracked_frames"] == 0:
         frames = f"{dataset.num_frames} frame" + ("s" if dataset.num_frames != 1 else "")
+        excursion = dataset.ground_truth_excursion()
+        moved = "" if excursion is None else f" (its ground truth moves {excursion:.3g} m in that time)"
         raise InitialisationError(
-            f"{dataset.name}: too short or too still to initialise: no frame tracked in {frames} ({dataset.frame_times[-1] - dataset.frame_times[0]:.2f} s); "
+            f"{dataset.name}: too short or too still to initialise: no frame tracked in {frames} ({dataset.frame_times[-1] - dataset.frame_times[0]:.2f} s){moved}; "
             f"{NOT_INITIALISED_HINT} (outputs in {out})"
         )
     typer.echo(

@@ -33,6 +33,8 @@ def _stamped(trajectory, times: Path | None, other, label: str):
 
 def evaluate_files(ref_path: Path, est_path: Path, settings, ref_times: Path | None = None, est_times: Path | None = None):
     """Read both trajectory files (KITTI ones stamped) and evaluate them with ``settings`` (EvalSettings)."""
+    from dataclasses import replace
+
     from evp.eval.evaluate import evaluate
     from evp.io.trajectory import read_trajectory
 
@@ -40,7 +42,8 @@ def evaluate_files(ref_path: Path, est_path: Path, settings, ref_times: Path | N
     est = read_trajectory(est_path)
     ref_stamped = _stamped(ref, ref_times, est, "reference")
     est_stamped = _stamped(est, est_times, ref_stamped, "estimate")
-    return evaluate(ref_stamped, est_stamped, settings)
+    frame_indexed = (ref.timestamps is None and ref_times is None) or (est.timestamps is None and est_times is None)
+    return replace(evaluate(ref_stamped, est_stamped, settings), frame_indexed=frame_indexed)
 
 
 def says_position_only(path: Path) -> bool:
@@ -102,15 +105,21 @@ def evaluate_command(
     result = evaluate_files(ref, est, settings, ref_times, est_times)
     summary = result.summary()
     stats = summary["ape_translation_m"]
-    typer.echo(f"matched poses {summary['matched_poses']}, alignment {align}, scale {result.alignment.scale:.6g}")
+    typer.echo(
+        f"matched poses {summary['matched_poses']}"
+        + (" by frame number (no times: --ref-times/--est-times give them)" if result.frame_indexed else "")
+        + f", alignment {align}, scale {result.alignment.scale:.6g}"
+    )
     typer.echo("APE translation (m): " + "  ".join(f"{k} {stats[k]:.6g}" for k in ("rmse", "mean", "median", "std", "min", "max", "q1", "q3", "iqr")))
     line = f"XY RMSE (m): {summary['xy_rmse']:.6g}"
     if summary["plane"] != "xy":
         line += f"   in-plane ({summary['plane']}) RMSE (m): {summary['plane_rmse']:.6g}"
-    if summary["reference_orientation"]:
+    if "ape_rotation_deg" in summary:
         line += f"   APE rotation RMSE (deg): {summary['ape_rotation_deg']['rmse']:.6g}"
-    else:
+    elif not summary["reference_orientation"]:
         line += "   (position-only reference: no rotation error or RPE)"
+    else:
+        line += "   (collinear path: the rotation about it is not observable, no APE rotation)"
     typer.echo(line)
     if "rpe" in summary:
         typer.echo(

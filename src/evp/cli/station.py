@@ -138,6 +138,17 @@ def run_stream(request: StreamRequest, echo) -> dict:
     return summary
 
 
+def _check_trust_options(cafile: str | None, fingerprint: str | None) -> None:
+    """A missing --cafile or a mangled --fingerprint, said before connecting (a link error would
+    blame the network, and a fingerprint that cannot match would refuse every station)."""
+    import re
+
+    if cafile is not None and not Path(cafile).is_file():
+        raise UsageError(f"--cafile {cafile}: no such file; copy the station's <data>/tls/cert.pem here, or give --fingerprint from its operator page")
+    if fingerprint is not None and not re.fullmatch(r"([0-9A-F]{2}:){31}[0-9A-F]{2}", fingerprint.upper()):
+        raise UsageError(f"--fingerprint {fingerprint}: expected the SHA-256 fingerprint as the operator page shows it, 32 hex pairs such as AB:CD:...:EF")
+
+
 @app.command()
 def stream(
     source: str = typer.Argument(..., help="Dataset/recording/video path, camera:N (local camera), or an MJPEG URL (http://phone:8080/video)."),
@@ -174,6 +185,7 @@ def stream(
     from evp.mobile.pairing import device_credential
 
     writable_folder(out)
+    _check_trust_options(cafile, fingerprint)
     credential = device_credential(url, pair, credential_file, cafile, fingerprint, insecure)
     robot = None
     if encoder_ticks:

@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from evp.cli.progress import progress_line
+from evp.io.output_paths import writable_folder
 
 app = typer.Typer()
 
@@ -28,6 +29,7 @@ def sweep(
     from evp.config import load_settings, with_overrides
     from evp.errors import DatasetError
 
+    writable_folder(out)
     for path in datasets:
         if not path.exists():
             raise DatasetError(path, "not found")

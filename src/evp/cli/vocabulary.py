@@ -25,20 +25,24 @@ def vocabulary_build(
 ) -> None:
     """Train a vocabulary (hierarchical k-medians of ORB descriptors, DBoW2's); the one shipped
     with EVP is this command without DATASETs."""
-    from rich.progress import Progress
-
+    from evp.cli.progress import progress_of
     from evp.config import load_settings
     from evp.io.vocabulary_files import save_vocabulary
     from evp.vocabulary_training import build_vocabulary, dataset_descriptors, rendered_descriptors
 
     writable_file(out, example="voc.npz")
     orb = load_settings(config).orb
-    with Progress(transient=True) as progress:
-        images = progress.add_task("extracting ORB features", total=None)
-        advance = lambda: progress.advance(images)  # noqa: E731
-        sets, names = dataset_descriptors(sources, every, orb, advance) if sources else rendered_descriptors(frames_per_scene, orb, advance)
-        nodes = progress.add_task(f"clustering {sum(len(d) for d in sets)} descriptors", total=None)
-        vocabulary = build_vocabulary(sets, names, branching, depth, orb, lambda done, total: progress.update(nodes, completed=done, total=total))
+    with progress_of("extracting ORB features", None, "images") as progress:
+        sets, names = dataset_descriptors(sources, every, orb, progress.advance) if sources else rendered_descriptors(frames_per_scene, orb, progress.advance)
+    with progress_of(f"clustering {sum(len(d) for d in sets)} descriptors", None, "nodes") as progress:
+        counted = [0]
+
+        def clustered(done: int, total: int) -> None:
+            progress.total = total
+            progress.advance(done - counted[0])
+            counted[0] = done
+
+        vocabulary = build_vocabulary(sets, names, branching, depth, orb, clustered)
     out.parent.mkdir(parents=True, exist_ok=True)
     save_vocabulary(vocabulary, out)
     typer.echo(f"{out}: {vocabulary.n_words} words from {len(sets)} images ({vocabulary.notes['descriptors']} descriptors)")

@@ -16,11 +16,10 @@ METHOD_HELP = (
 
 
 def _tuning_progress(settings, label: str):
-    from rich.progress import Progress
+    """Progress of the leave-one-place-out choice of k, on stderr (stdout keeps the results)."""
+    from evp.cli.progress import progress_of
 
-    progress = Progress(transient=True)
-    task = progress.add_task(label, total=len(settings.wifi.k_candidates))
-    return progress, lambda: progress.advance(task)
+    return progress_of(label, len(settings.wifi.k_candidates), "values of k")
 
 
 @app.command("build")
@@ -58,9 +57,8 @@ def wifi_locate(
     settings = _settings(config)
     survey = load_radio_map(radio_map)
     if method == TUNED.name:
-        progress, advance = _tuning_progress(settings, "choosing k (leave-one-place-out)")
-        with progress:
-            chosen = method_named(method, survey, settings.wifi, advance)
+        with _tuning_progress(settings, "choosing k (leave-one-place-out)") as progress:
+            chosen = method_named(method, survey, settings.wifi, progress.advance)
     else:
         chosen = method_named(method, survey, settings.wifi)
     found = locate(
@@ -93,9 +91,8 @@ def wifi_eval(
     writable_file(json_out, "--json", "scores.json")
     settings = _settings(config)
     survey, tests = read_database(folder)
-    progress, advance = _tuning_progress(settings, "choosing k for wknn_cv (leave-one-place-out)")
-    with progress:
-        methods, tuning = compared_methods(survey, settings.wifi, advance)
+    with _tuning_progress(settings, "choosing k for wknn_cv (leave-one-place-out)") as progress:
+        methods, tuning = compared_methods(survey, settings.wifi, progress.advance)
     result = evaluate_methods(survey, tests, methods, settings.wifi.not_detected_dbm, settings.wifi.place_tolerance_m)
     for name, scores in result["methods"].items():
         typer.echo(

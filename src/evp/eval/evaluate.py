@@ -33,11 +33,12 @@ class EvaluationResult:
     alignment: Similarity
     ape_translation: np.ndarray
     ape_translation_xy: np.ndarray
-    ape_rotation_deg: np.ndarray | None  # None: the reference is position-only (options.rotation false)
+    ape_rotation_deg: np.ndarray | None  # None: the reference is position-only (options.rotation false), or the alignment degenerate
     rpe: RelativeErrors | None
     plane: Plane
     ape_translation_plane: np.ndarray  # in the plane the reference moves in (or the one options.plane names)
     subset_mask: np.ndarray | None = field(default=None)
+    frame_indexed: bool = False  # the "times" are frame numbers (KITTI files without times.txt): figures say so
 
     def summary(self) -> dict:
         """JSON-ready numbers: APE translation statistics at the top level (the CLI contract)."""
@@ -48,7 +49,7 @@ class EvaluationResult:
         out["ape_translation_xy_m"] = error_statistics(self.ape_translation_xy)
         out["plane"] = self.plane.name
         out["plane_rmse"] = float(np.sqrt(np.mean(self.ape_translation_plane**2)))
-        out["reference_orientation"] = self.ape_rotation_deg is not None
+        out["reference_orientation"] = self.options.rotation
         if self.ape_rotation_deg is not None:
             out["ape_rotation_deg"] = error_statistics(self.ape_rotation_deg)
         if self.rpe is not None:
@@ -93,7 +94,8 @@ class EvaluationResult:
 
 def evaluate(ref: Trajectory, est: Trajectory, options: EvalSettings) -> EvaluationResult:
     """Associate, align, and compute APE (translation, XY, in the path's plane, rotation), RPE and
-    the z subset; a position-only reference (``options.rotation`` false) gets no rotation APE or RPE.
+    the z subset; a position-only reference (``options.rotation`` false) gets no rotation APE or RPE,
+    and a degenerate alignment (a straight path: the rotation about it is arbitrary) no rotation APE.
 
     ``options.max_time_diff_s`` must be a number: a None (the frame-rate default) is resolved
     where the dataset is known (``evp.run_setup.resolve_settings``)."""
@@ -118,7 +120,7 @@ def evaluate(ref: Trajectory, est: Trajectory, options: EvalSettings) -> Evaluat
         alignment=transform,
         ape_translation=ape_translation(ref_matched, aligned),
         ape_translation_xy=ape_translation_xy(ref_matched, aligned),
-        ape_rotation_deg=ape_rotation_deg(ref_matched, aligned) if options.rotation else None,
+        ape_rotation_deg=ape_rotation_deg(ref_matched, aligned) if options.rotation and not transform.degenerate else None,
         rpe=rpe,
         plane=plane,
         ape_translation_plane=np.linalg.norm(plane.project(aligned.positions - ref_matched.positions), axis=1),

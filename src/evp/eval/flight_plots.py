@@ -9,6 +9,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from evp.fusion.flight import NEAR_TARGET_M, FlightResult  # noqa: E402
 
@@ -21,11 +22,12 @@ def plot_flight_errors(result: FlightResult, out: Path) -> list[Path]:
     near = np.abs(result.error_heights_m - target) < NEAR_TARGET_M
     paths = []
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.6), sharey=True)
-    for ax, data, title in ((axes[0], errors, "whole flight"), (axes[1], errors[near], f"|z - {target:.0f} m| < {NEAR_TARGET_M:.0f} m")):
+    for ax, data, title in ((axes[0], errors, "whole flight"), (axes[1], errors[near], f"near target altitude (|z - {target:.0f} m| < {NEAR_TARGET_M:.0f} m)")):
         if data.size:
             ax.hist(data, bins=30, color="tab:blue", alpha=0.8)
         ax.set_title(title)
         ax.set_xlabel("horizontal error vs GPS (m)")
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))  # counts of fixes: no 1.5
     axes[0].set_ylabel("fixes")
     fig.tight_layout()
     fig.savefig(out / "error_histogram.png", dpi=110)

@@ -19,7 +19,11 @@ from evp.io.flight_files import write_geo_track, write_trust_csv
 def flight_summary(result: FlightResult) -> dict:
     """JSON-ready statistics, alignment, events and warnings of a flight."""
     if result.errors_m.size == 0:
-        raise AlignmentError("no GPS fix after the alignment phase has a visual position to compare with")
+        first, last = (t - result.gps.times[0] for t in result.alignment.window)
+        raise AlignmentError(
+            f"no GPS fix after the alignment phase ({first:.1f}..{last:.1f} s after the first fix) has a visual position to compare with: "
+            "the visual track ends within it; a shorter phase leaves fixes to check (--align-fraction 0.33: the first third)"
+        )
     out: dict = dict(error_statistics(result.errors_m))
     out["n_evaluated"] = int(result.errors_m.size)
     target = result.alignment.chosen["target_altitude_m"]

@@ -1,5 +1,6 @@
 """evo-style evaluation figures (PNG): top view (in the plane the path lies in), error over time,
-histogram, box plot; metres on every axis, ticks at round numbers without offsets."""
+histogram, box plot; metres on every axis, ticks at round numbers without offsets. A run without
+ground truth gets its trajectory drawn alone."""
 
 from __future__ import annotations
 
@@ -13,6 +14,8 @@ import numpy as np  # noqa: E402
 from matplotlib.ticker import MaxNLocator, ScalarFormatter  # noqa: E402
 
 from evp.eval.evaluate import EvaluationResult  # noqa: E402
+from evp.eval.plane import motion_plane  # noqa: E402
+from evp.types import Trajectory  # noqa: E402
 
 
 def _save(fig, path: Path) -> Path:
@@ -62,18 +65,39 @@ def plot_top_view(result: EvaluationResult, path: Path) -> Path:
     return _save(fig, path)
 
 
+def plot_trajectory(trajectory: Trajectory, path: Path, metric: bool, plane_choice: str = "auto") -> Path:
+    """A run without ground truth: its trajectory alone, in the plane it moves in, from its start
+    to its end; metres when the run is metric (IMU fused), else the map's own units (monocular)."""
+    plane = motion_plane(trajectory.positions, plane_choice)
+    xy = plane.project(trajectory.positions)
+    labels = plane.labels if metric else tuple(label.replace("(m)", "(map units)") for label in plane.labels)
+    fig, ax = plt.subplots(figsize=(6.4, 5.6))
+    ax.plot(xy[:, 0], xy[:, 1], "-", color="tab:blue", lw=1.2, label="estimate")
+    ax.plot(*xy[0], "o", color="tab:green", label="start")
+    ax.plot(*xy[-1], "s", color="tab:red", label="end")
+    ax.set_xlabel(labels[0])
+    ax.set_ylabel(labels[1])
+    ax.set_aspect("equal", adjustable="datalim")
+    view = {"xy": "top view (x-y)", "principal": "plane of the motion"}.get(plane.name, f"{plane.name[0]}-{plane.name[1]} plane")
+    ax.set_title(f"Estimated trajectory, {view}" + ("" if metric else "\nscale unknown (monocular, no IMU fused)"))
+    ax.legend(loc="best")
+    ax.grid(alpha=0.3)
+    readable_axes(ax)
+    return _save(fig, path)
+
+
 def plot_error_over_time(result: EvaluationResult, path: Path) -> Path:
     errors = result.ape_translation
     t = result.ref.timestamps - result.ref.timestamps[0]
-    fig, ax = plt.subplots(figsize=(7.0, 3.6))
+    fig, ax = plt.subplots(figsize=(8.2, 3.6))
     ax.plot(t, errors, color="tab:blue", lw=1.0, label="APE")
     for name, style in (("rmse", "-"), ("mean", "--"), ("median", ":")):
         value = float(np.sqrt(np.mean(errors**2))) if name == "rmse" else float(getattr(np, name)(errors))
         ax.axhline(value, ls=style, color="tab:red" if name == "rmse" else "0.3", lw=1.0, label=f"{name} {value:.4g} m")
     ax.fill_between(t, np.mean(errors) - np.std(errors), np.mean(errors) + np.std(errors), color="0.8", alpha=0.5, label="std")
-    ax.set_xlabel("time (s)")
+    ax.set_xlabel("frame (no times given)" if result.frame_indexed else "time (s)")
     ax.set_ylabel("APE translation (m)")
-    ax.legend(loc="upper left", fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)  # beside the curve, never over it
     ax.grid(alpha=0.3)
     readable_axes(ax)
     return _save(fig, path)
@@ -86,6 +110,7 @@ def plot_histogram(result: EvaluationResult, path: Path) -> Path:
     ax.set_ylabel("poses")
     ax.grid(alpha=0.3)
     readable_axes(ax)
+    ax.yaxis.set_major_locator(MaxNLocator(7, integer=True))  # counts of poses: no 2.5
     return _save(fig, path)
 
 

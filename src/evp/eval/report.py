@@ -16,21 +16,30 @@ def markdown_summary(result: EvaluationResult, ref_name: str, est_name: str) -> 
     lines = [
         f"# Trajectory evaluation: `{est_name}` vs `{ref_name}`",
         "",
-        f"- matched poses: {summary['matched_poses']} (max time difference {result.options.max_time_diff_s} s, offset {result.options.time_offset_s} s)",
+        f"- matched poses: {summary['matched_poses']} "
+        + (
+            "by frame number (the KITTI files came without times)"
+            if result.frame_indexed
+            else f"(max time difference {result.options.max_time_diff_s:.4g} s, offset {result.options.time_offset_s:g} s)"
+        ),
         f"- alignment: {result.options.align}"
         + (f" on the first {result.options.n_align} poses" if result.options.n_align else "")
         + f", scale {result.alignment.scale:.6g}",
-        *(["- alignment is degenerate (collinear positions): the rotation about that line is not observable"] if result.alignment.degenerate else []),
+        *(
+            ["- alignment is degenerate (collinear positions): the rotation about that line is not observable, so no APE rotation"]
+            if result.alignment.degenerate
+            else []
+        ),
         f"- reference path length: {summary['reference_path_length_m']:.3f} m",
         f"- XY RMSE: {summary['xy_rmse']:.6g} m",
         *([f"- in-plane RMSE ({summary['plane']}, the plane the reference moves in): {summary['plane_rmse']:.6g} m"] if summary["plane"] != "xy" else []),
         *([] if summary["reference_orientation"] else ["- the reference measures positions only: no rotation error or RPE"]),
         "",
-        "| statistic | APE translation (m) | APE XY (m) |" + (" APE rotation (deg) |" if summary["reference_orientation"] else ""),
-        "|---|---|---|" + ("---|" if summary["reference_orientation"] else ""),
+        "| statistic | APE translation (m) | APE XY (m) |" + (" APE rotation (deg) |" if "ape_rotation_deg" in summary else ""),
+        "|---|---|---|" + ("---|" if "ape_rotation_deg" in summary else ""),
     ]
     for row in ROWS:
-        rotation = f" {summary['ape_rotation_deg'][row]:.6g} |" if summary["reference_orientation"] else ""
+        rotation = f" {summary['ape_rotation_deg'][row]:.6g} |" if "ape_rotation_deg" in summary else ""
         lines.append(f"| {row} | {summary['ape_translation_m'][row]:.6g} | {summary['ape_translation_xy_m'][row]:.6g} |{rotation}")
     if "rpe" in summary:
         rpe = summary["rpe"]

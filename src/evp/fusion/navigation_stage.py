@@ -506,7 +506,7 @@ class NavigationStage:
                     self._start(alignment, "visual-inertial")
                     return
                 alignment = replace(alignment, observable=False, reason=contradiction)
-            reasons.append(alignment.reason if stride == 1 else f"every {stride}th keyframe: {alignment.reason}")
+            reasons.append(alignment.reason if stride == 1 else f"one keyframe in {stride}: {alignment.reason}")
         newest = self._keyframes[-s.vi_init_window_keyframes :]
         if self._wheel:
             wheels = initialise_from_wheels(newest, self._wheel, self._imu, self.T_body_cam, s)

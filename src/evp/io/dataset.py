@@ -14,6 +14,21 @@ from evp.errors import DatasetError
 from evp.io.image_headers import read_image_header
 from evp.types import BaroSample, BeaconRange, CameraModel, EncoderCounts, Frame, GpsFix, ImuSample, RangeSample, Trajectory, WheelOdometry, WifiScan
 
+# what runs the camera-less recordings (wheel odometry, beacon ranges, GNSS): the filter against
+# odometry alone on the shared datasets, as issue 30 measured it
+CAMERALESS_BENCH = "python bench/ground_vehicles.py"
+
+SENSOR_NAMES = {
+    "camera": "camera frames",
+    "imu": "IMU",
+    "gps": "GNSS fixes",
+    "baro": "barometer",
+    "wheel": "wheel odometry",
+    "wifi": "WiFi scans",
+    "range": "range finder",
+    "beacon": "beacon ranges",
+}
+
 TelemetryRecord = ImuSample | GpsFix | BaroSample | WheelOdometry | EncoderCounts | WifiScan | RangeSample | BeaconRange
 
 
@@ -84,6 +99,30 @@ class Dataset:
             "beacon": len(self.beacon_ranges),
         }
         return {name: count for name, count in counts.items() if count}
+
+    def ground_truth_excursion(self) -> float | None:
+        """How far (m) the ground truth gets from where it was at the first frame while the frames
+        run: what tells a camera that stood still (EuRoC V1_01's first seconds: 2 mm) from one
+        the estimator failed on; None without timed ground truth over the frames."""
+        truth = self.ground_truth
+        if truth is None or truth.timestamps is None or self.num_frames == 0:
+            return None
+        during = (truth.timestamps >= self.frame_times[0]) & (truth.timestamps <= self.frame_times[-1])
+        if not during.any():
+            return None
+        positions = truth.positions[during]
+        return float(np.linalg.norm(positions - positions[0], axis=1).max())
+
+    def no_frames_reason(self) -> str:
+        """Why ``evp run`` cannot run here, for a recording without images (comma2k19's segment,
+        the wheel robots, trajectory files): what it holds instead, and what puts that to use."""
+        if not self.sensors():
+            return "no camera frames to run on: only trajectories here; compare two with evp eval REF EST"
+        held = ", ".join(SENSOR_NAMES[name] for name in self.sensors()) + (" and ground truth" if self.ground_truth is not None else "")
+        reason = f"no camera frames to run on: this {self.format} recording holds {held} (evp info lists them), and evp run estimates from a camera"
+        if self.wheel or self.beacon_ranges:
+            reason += f"; its wheel odometry{' and beacon ranges' if self.beacon_ranges else ''} without images run in {CAMERALESS_BENCH}"
+        return reason
 
 
 # The largest image decoded: 134 Mpx (2^27; 400 MB as BGR), beyond any camera a dataset holds

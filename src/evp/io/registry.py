@@ -14,7 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Protocol
 
-from evp.errors import AmbiguousFormatError, UnknownFormatError
+from evp.errors import AmbiguousFormatError, UnknownFormatError, UsageError
 from evp.io.dataset import Dataset
 
 
@@ -36,10 +36,15 @@ def readers() -> list[DatasetReader]:
 
 
 def reader_by_name(name: str) -> DatasetReader:
+    """The reader ``--format NAME`` names; a misspelt name is a usage error naming the nearest."""
+    from difflib import get_close_matches
+
+    names = [reader.name for reader in readers()]
     for reader in readers():
         if reader.name == name:
             return reader
-    raise UnknownFormatError(f"unknown dataset format {name!r}; known: {', '.join(r.name for r in readers())}")
+    close = get_close_matches(name, names, n=1, cutoff=0.6)
+    raise UsageError(f"--format {name!r}: no such dataset format; " + (f"did you mean {close[0]}? " if close else "") + f"known: {', '.join(names)}")
 
 
 def detect_reader(path: str | Path) -> DatasetReader:
@@ -50,6 +55,8 @@ def detect_reader(path: str | Path) -> DatasetReader:
     if not path.exists():
         raise UnknownFormatError(f"{path}: no such file or folder")
     for candidates in (READERS, FALLBACK_READERS):
+        if candidates is FALLBACK_READERS and path.is_dir():
+            refuse_a_part_of_a_dataset(path)  # mav0/cam0's data.csv is no trajectory to show
         matches = [reader for reader in candidates if reader.detect(path)]
         if len(matches) > 1:
             found = " and ".join(f"{r.name} ({r.looks_for})" for r in matches)
@@ -58,6 +65,21 @@ def detect_reader(path: str | Path) -> DatasetReader:
         if matches:
             return matches[0]
     raise UnknownFormatError(f"{path}: {what_is_missing(path)}")
+
+
+# how far up a folder given by mistake can be from its dataset's root: EuRoC's mav0/cam0/data is 3
+MAX_DATASET_DEPTH = 3
+
+
+def refuse_a_part_of_a_dataset(folder: Path) -> None:
+    """A folder inside a dataset that a reader recognises (EuRoC's mav0/cam0, KITTI's image_0,
+    the sample's images/) is refused with the dataset's root, which is what to give."""
+    from evp.io.readers import READERS
+
+    for parent in list(folder.absolute().parents)[:MAX_DATASET_DEPTH]:
+        for reader in READERS:
+            if reader.detect(parent):
+                raise UnknownFormatError(f"{folder}: a part of the {reader.name} dataset {parent}; give that folder")
 
 
 def what_is_missing(path: Path) -> str:

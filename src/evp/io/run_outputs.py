@@ -85,8 +85,8 @@ def write_outputs(
     navigation: NavigationStage | None = None,
     refined_navigation: tuple[RunResult, NavigationStage] | None = None,
 ) -> dict:
-    """trajectory.tum, states.csv, timing.json, metrics.json (+ plots) when ground truth exists,
-    settings.yaml; trajectory_live.tum (the poses as answered live) when the estimator's trajectory
+    """trajectory.tum, states.csv, timing.json, metrics.json (+ plots: the evaluation's when ground
+    truth exists, else plots/trajectory.png), settings.yaml; trajectory_live.tum (the poses as answered live) when the estimator's trajectory
     is a refined one; camera_estimated.yaml (usable as camera.calibration_file) when the
     estimator estimated the lens; for an estimator with a map also keyframes.tum, map.ply and map.npz.
 
@@ -154,6 +154,11 @@ def write_outputs(
         else:
             metrics.update(evaluation.summary())
             write_report(evaluation, out / "plots", "ground truth", "trajectory.tum")
+    elif dataset.ground_truth is None and len(trajectory) >= 2:  # nothing to compare with: the track itself is the figure
+        from evp.eval.plots import plot_trajectory
+
+        (out / "plots").mkdir(exist_ok=True)
+        plot_trajectory(metric if metric else trajectory, out / "plots" / "trajectory.png", metric is not None, settings.eval.plane)
     if fused_stage is not None:
         metrics["navigation"] = navigation_metrics(fused_stage, fused_result, dataset, settings, out)
         if live_fused:

@@ -55,7 +55,7 @@ def summarise(dataset: Dataset) -> dict:
     if gt is not None:
         out["ground_truth"] = {
             "poses": len(gt),
-            "duration_s": gt.duration,
+            "duration_s": gt.duration if gt.timestamps is not None else None,
             "path_length_m": gt.path_length,
             "rate_hz": _rate(gt.timestamps) if gt.timestamps is not None else None,
             "note": dataset.ground_truth_note,
@@ -63,10 +63,18 @@ def summarise(dataset: Dataset) -> dict:
     else:
         out["ground_truth"] = None
     if dataset.trajectories:
-        out["trajectories"] = {name: {"poses": len(t), "path_length_m": t.path_length, "duration_s": t.duration} for name, t in dataset.trajectories.items()}
+        out["trajectories"] = {
+            name: {"poses": len(t), "path_length_m": t.path_length, "duration_s": t.duration if t.timestamps is not None else None}
+            for name, t in dataset.trajectories.items()
+        }
     out["notes"] = list(dataset.notes)
     out["warnings"] = list(dataset.warnings)
     return out
+
+
+def _duration(seconds: float | None) -> str:
+    """A trajectory's time span, or that it has none (KITTI poses: 0.00 s would read as a fact)."""
+    return "no times (KITTI poses: evp eval takes --ref-times/--est-times)" if seconds is None else f"{seconds:.2f} s"
 
 
 def describe(summary: dict) -> str:
@@ -92,11 +100,11 @@ def describe(summary: dict) -> str:
         lines.append("  calibration: none")
     g = summary["ground_truth"]
     if g:
-        lines.append(f"  ground truth: {g['poses']} poses, {g['duration_s']:.2f} s, path length {g['path_length_m']:.3f} m ({g['note']})")
+        lines.append(f"  ground truth: {g['poses']} poses, {_duration(g['duration_s'])}, path length {g['path_length_m']:.3f} m ({g['note']})")
     else:
         lines.append("  ground truth: none")
     for name, t in summary.get("trajectories", {}).items():
-        lines.append(f"  trajectory {name}: {t['poses']} poses, {t['path_length_m']:.3f} m, {t['duration_s']:.2f} s")
+        lines.append(f"  trajectory {name}: {t['poses']} poses, {t['path_length_m']:.3f} m, {_duration(t['duration_s'])}")
     lines += [f"  note: {n}" for n in summary["notes"]]
     lines += [f"  warning: {w}" for w in summary["warnings"]]
     return "\n".join(lines)

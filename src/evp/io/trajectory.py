@@ -51,7 +51,11 @@ def _parse_rows(path: Path, lines: list[tuple[int, str]], separator: str | None,
         if width is None:
             width = len(fields)
             if width not in columns:
-                raise TrajectoryFormatError(path, f"expected {' or '.join(map(str, sorted(columns)))} values, found {width}", line=number)
+                counts = sorted(columns)
+                expected = (
+                    f"{counts[0]} to {counts[-1]}" if len(counts) > 2 and counts == list(range(counts[0], counts[-1] + 1)) else " or ".join(map(str, counts))
+                )
+                raise TrajectoryFormatError(path, f"expected {expected} values, found {width}", line=number)
         elif len(fields) != width:
             raise TrajectoryFormatError(path, f"expected {width} values like the first row, found {len(fields)}", line=number)
         try:
@@ -75,13 +79,13 @@ def detect_trajectory_format(path: Path) -> TrajectoryFormat:
     number, first = lines[0]
     if first.replace(" ", "").lower().startswith(CSV_HEADER):
         return TrajectoryFormat.CSV
-    if "," in first:
-        return TrajectoryFormat.EUROC
-    fields = first.split()
+    fields = first.split(",") if "," in first else first.split()
     try:
         float(fields[0])
-    except ValueError:  # a label such as KITTI calib.txt's "P0:": not poses
+    except ValueError:  # a label such as KITTI calib.txt's "P0:", or another table's header: not poses
         raise TrajectoryFormatError(path, f"not a trajectory: the first value {fields[0]!r} is not a number", line=number) from None
+    if "," in first:
+        return TrajectoryFormat.EUROC
     count = len(fields)
     if count == 8:
         return TrajectoryFormat.TUM

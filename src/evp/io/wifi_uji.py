@@ -56,6 +56,8 @@ def database_folder(folder: Path) -> Path:
     folder = Path(folder)
     if (folder / f"{SURVEY_SET}rss.csv").is_file():
         return folder
+    if folder.is_file():
+        raise UnknownFormatError(f"{folder}: a file, and the folder holding the UJI sets is needed here: give {folder.parent}")
     if not folder.is_dir():
         raise UnknownFormatError(f"{folder}: no such folder")
     databases = sorted(p for p in folder.iterdir() if p.is_dir() and re.fullmatch(r"db\d+", p.name) and (p / f"{SURVEY_SET}rss.csv").is_file())

@@ -155,6 +155,7 @@ class StreamClient:
 
     async def _connect(self):
         import websockets
+        import websockets.exceptions  # loaded lazily by websockets: the except clause below needs it before any connect
 
         try:
             context = tls_context(self.cafile, self.insecure or bool(self.pin)) if self.url.startswith("wss") else None

@@ -6,11 +6,15 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 
 from evp.errors import DataError, ExitCode, UsageError
 from evp.io.output_paths import writable_folder
+
+if TYPE_CHECKING:
+    from evp.config import RobotSettings
 
 app = typer.Typer()
 
@@ -89,7 +93,7 @@ class StreamRequest:
     out: Path | None = None
     quiet: bool = False
     device: str = "evp-stream"
-    robot: object | None = None
+    robot: RobotSettings | None = None
 
 
 def run_stream(request: StreamRequest, echo) -> dict:

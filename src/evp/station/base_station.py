@@ -31,6 +31,7 @@ if TYPE_CHECKING:
 from evp.types import CameraModel
 
 log = logging.getLogger(__name__)
+RESUME_FLUSH_S = 1.0
 
 
 def default_camera(settings: Settings) -> CameraModel:
@@ -148,8 +149,10 @@ class Station:
         if not SESSION_ID.fullmatch(hello.resume):
             raise ProtocolError("unknown_session", f"{hello.resume[:64]!r} is not a session id (YYYYMMDD-HHMMSS-xxxxxx)")
         session = self.sessions.get(hello.resume)
-        if session is None:
-            self.store.flush()  # the session's end may still be queued: its row must say so
+        if session is None:  # the session's end may still be queued: its row must say so. On the event
+            # loop: a working database commits within ~0.1 s; a failing one is waited for no longer
+            # than RESUME_FLUSH_S (the row is then read as it stands, as before the flush existed)
+            self.store.flush(RESUME_FLUSH_S)
         row = self.store.session(hello.resume) if session is None else None
         owner = session.owner if session is not None else (row or {}).get("owner")
         if owner is None or owner != identity.credential_id:

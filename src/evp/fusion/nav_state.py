@@ -30,6 +30,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from evp.geometry.transforms import skew
+
 POSITION = slice(0, 3)
 VELOCITY = slice(3, 6)
 ATTITUDE = slice(6, 9)
@@ -57,6 +59,18 @@ def so3_exp(rotation_vector: np.ndarray) -> np.ndarray:
         a, b = np.sin(angle) / angle, (1.0 - np.cos(angle)) / angle2
     k = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
     return np.eye(3) + a * k + b * (k @ k)
+
+
+def so3_exp_many(rotation_vectors: np.ndarray) -> np.ndarray:
+    """:func:`so3_exp` of each row of an (N, 3) array, as one array operation: (N, 3, 3)."""
+    v = np.asarray(rotation_vectors, float).reshape(-1, 3)
+    angle2 = np.einsum("ni,ni->n", v, v)
+    small = angle2 < 1e-16
+    angle = np.sqrt(np.where(small, 1.0, angle2))
+    a = np.where(small, 1.0, np.sin(angle) / angle)
+    b = np.where(small, 0.5, (1.0 - np.cos(angle)) / np.where(small, 1.0, angle2))
+    k = skew(v)
+    return np.eye(3) + a[:, None, None] * k + b[:, None, None] * (k @ k)
 
 
 def so3_log(R: np.ndarray) -> np.ndarray:

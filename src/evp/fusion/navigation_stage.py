@@ -499,7 +499,8 @@ class NavigationStage:
                 alignment = refine_inertial(history, self._imu, self.T_body_cam, alignment, s)
                 window = history
                 if alignment.observable and not alignment.scale_sigma <= s.vi_refine_max_scale_sigma:
-                    alignment = replace(alignment, observable=False, reason=f"refined scale not yet determined: +-{100 * alignment.scale_sigma:.1f} %")
+                    reasons.append(f"refined scale not yet determined: +-{100 * alignment.scale_sigma:.1f} %")
+                    break  # the refinement is over the same keyframes whichever window seeded it: once an attempt
             if alignment.observable:
                 contradiction = self._baro_contradiction(alignment, window)
                 if contradiction is None:

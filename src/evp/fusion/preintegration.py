@@ -17,7 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from evp.fusion.nav_state import skew3, so3_exp
+from evp.fusion.nav_state import so3_exp_many
+from evp.geometry.transforms import skew
 
 
 @dataclass(frozen=True)
@@ -45,40 +46,51 @@ def samples_between(times: np.ndarray, gyro: np.ndarray, accel: np.ndarray, t0: 
 
 def preintegrate(t: np.ndarray, w: np.ndarray, f: np.ndarray, gyro_bias: np.ndarray, noise_densities: tuple[float, float] | None = None) -> Preintegrated:
     """Preintegrate readings ``w`` (rad/s) and ``f`` (m/s^2) at times ``t`` on ``gyro_bias``;
-    ``noise_densities`` (gyro rad/s/sqrt(Hz), accelerometer m/s^2/sqrt(Hz)) adds the covariance."""
-    dR, dv, dp, J = np.eye(3), np.zeros(3), np.zeros(3), np.zeros((3, 3))
-    dv_dba, dp_dba = np.zeros((3, 3)), np.zeros((3, 3))
-    P = np.zeros((9, 9)) if noise_densities is not None else None
-    for j in range(len(t) - 1):
-        h = t[j + 1] - t[j]
-        step = so3_exp((0.5 * (w[j] + w[j + 1]) - gyro_bias) * h)
-        a0 = dR @ f[j]
-        dR_next = dR @ step
-        a1 = dR_next @ f[j + 1]
-        if P is not None:
-            P = _propagated(P, dR, step, 0.5 * (f[j] + f[j + 1]), h, noise_densities)
-        dp = dp + dv * h + h * h * (a0 / 3.0 + a1 / 6.0)
-        dp_dba = dp_dba + dv_dba * h - h * h * (dR / 3.0 + dR_next / 6.0)
-        dv = dv + 0.5 * (a0 + a1) * h
-        dv_dba = dv_dba - 0.5 * (dR + dR_next) * h
-        J = step.T @ J - h * np.eye(3)  # small-step right Jacobian taken as identity
-        dR = dR_next
-    return Preintegrated(t[-1] - t[0], dR, dv, dp, J, dv_dba, dp_dba, P)
+    ``noise_densities`` (gyro rad/s/sqrt(Hz), accelerometer m/s^2/sqrt(Hz)) adds the covariance.
+
+    Only the rotation chain is a loop (one 3x3 product a sample); the sums are arrays: the
+    visual-inertial start preintegrates every interval of up to 60 keyframes per attempt, and the
+    loop of small NumPy calls per sample took two thirds of its time."""
+    h = np.diff(t)
+    steps = so3_exp_many((0.5 * (w[:-1] + w[1:]) - gyro_bias) * h[:, None])
+    R = np.empty((len(t), 3, 3))  # dR at each reading
+    R[0] = np.eye(3)
+    for j, step in enumerate(steps):
+        R[j + 1] = R[j] @ step
+    a = np.einsum("nij,nj->ni", R, f)  # each reading's force in the start frame
+    hv, hm = h[:, None], h[:, None, None]
+    dv_steps = 0.5 * (a[:-1] + a[1:]) * hv
+    dv_before = np.cumsum(dv_steps, axis=0) - dv_steps  # dv at each step's start
+    dp = np.sum(dv_before * hv + hv * hv * (a[:-1] / 3.0 + a[1:] / 6.0), axis=0)
+    dv_dba_steps = -0.5 * (R[:-1] + R[1:]) * hm
+    dv_dba_before = np.cumsum(dv_dba_steps, axis=0) - dv_dba_steps
+    dp_dba = np.sum(dv_dba_before * hm - hm * hm * (R[:-1] / 3.0 + R[1:] / 6.0), axis=0)
+    # J' = step^T J - h I from J = 0, summed: -dR^T sum_j h_j R_{j+1} (small-step right Jacobian taken as identity)
+    J = -R[-1].T @ np.sum(R[1:] * hm, axis=0)
+    P = None
+    if noise_densities is not None:
+        P = np.zeros((9, 9))
+        for A, N in zip(*_noise_steps(R, steps, 0.5 * (f[:-1] + f[1:]), h, noise_densities), strict=True):
+            P = A @ P @ A.T + N
+    return Preintegrated(t[-1] - t[0], R[-1], dv_steps.sum(axis=0), dp, J, dv_dba_steps.sum(axis=0), dp_dba, P)
 
 
-def _propagated(P: np.ndarray, dR: np.ndarray, step: np.ndarray, force: np.ndarray, h: float, densities: tuple[float, float]) -> np.ndarray:
-    """One sample's step of the (rotation, velocity, position) covariance: white noise of
-    variance density^2 / h per sample on each reading."""
-    rotated_force = dR @ skew3(force)
-    A = np.eye(9)
-    A[0:3, 0:3] = step.T
-    A[3:6, 0:3] = -rotated_force * h
-    A[6:9, 0:3] = -0.5 * rotated_force * h * h
-    A[6:9, 3:6] = np.eye(3) * h
-    B = np.zeros((9, 6))
-    B[0:3, 0:3] = np.eye(3) * h
-    B[3:6, 3:6] = dR * h
-    B[6:9, 3:6] = 0.5 * dR * h * h
+def _noise_steps(R: np.ndarray, steps: np.ndarray, force: np.ndarray, h: np.ndarray, densities: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Each sample's step of the (rotation, velocity, position) covariance, ``P' = A P A^T + N``,
+    for all samples at once (``R``: dR at each reading; ``force``: each step's mean reading):
+    white noise of variance density^2 / h per sample on each reading."""
+    m = len(h)
+    hm = h[:, None, None]
+    rotated_force = R[:-1] @ skew(force)
+    A = np.tile(np.eye(9), (m, 1, 1))
+    A[:, 0:3, 0:3] = np.transpose(steps, (0, 2, 1))
+    A[:, 3:6, 0:3] = -rotated_force * hm
+    A[:, 6:9, 0:3] = -0.5 * rotated_force * hm * hm
+    A[:, 6:9, 3:6] = np.eye(3) * hm
+    B = np.zeros((m, 9, 6))
+    B[:, 0:3, 0:3] = np.eye(3) * hm
+    B[:, 3:6, 3:6] = R[:-1] * hm
+    B[:, 6:9, 3:6] = 0.5 * R[:-1] * hm * hm
     gyro_density, accel_density = densities
-    Q = np.diag([gyro_density**2 / h] * 3 + [accel_density**2 / h] * 3)
-    return A @ P @ A.T + B @ Q @ B.T
+    q = np.concatenate([np.full((m, 3), gyro_density**2), np.full((m, 3), accel_density**2)], axis=1) / h[:, None]
+    return A, (B * q[:, None, :]) @ np.transpose(B, (0, 2, 1))

@@ -157,6 +157,63 @@ def test_every_jump_of_the_estimator_steps_the_answers_reset_counter():
     assert counters == [0, 1, 1, 2, 2]
 
 
+class _SlowStage:
+    """A stage whose processing of frame ``slow_frame`` stays busy (the visual-inertial start's
+    solve) until ``release`` is set; ``busy`` is set when it starts. It keeps every record it is
+    given and predicts the estimate it last processed, carried to the asked time."""
+
+    def __init__(self, slow_frame: int):
+        self.slow_frame, self.busy, self.release = slow_frame, threading.Event(), threading.Event()
+        self.records, self.last = [], None
+
+    def observe(self, record) -> None:
+        self.records.append(record)
+
+    def process(self, frame: Frame, estimate: PoseEstimate) -> PoseEstimate:
+        if frame.index == self.slow_frame:
+            self.busy.set()
+            assert self.release.wait(timeout=10)
+        self.last = estimate
+        return estimate
+
+    def predict(self, timestamp: float, pending=()) -> PoseEstimate | None:
+        return None if self.last is None else PoseEstimate(timestamp, self.last.T_world_cam, TrackingState.OK, 80)
+
+
+def test_a_stage_busy_in_a_long_call_holds_up_neither_telemetry_nor_answers():
+    """The link's thread goes on while the stages' lock is held: telemetry is held for later and
+    each answer is the previous one's pose at its own time; once the stage is done, every record
+    reaches it in order and answers come from it again."""
+    trajectory = SinusoidTrajectory()
+    stage = _SlowStage(slow_frame=1)
+    done = _Done()
+    live = LivePipeline(Pipeline(_GatedVision(trajectory), [done], [stage]))
+    imu = trajectory.imu(imu_times(2.0))
+    try:
+        live.frame(_frame(0, 0.0))
+        assert done.fed.acquire(timeout=10)
+        before = live.answer(0, 0.01)
+        live.frame(_frame(1, 0.05))
+        assert stage.busy.wait(timeout=10)  # the vision thread is inside the stage, holding its lock
+        for sample in imu[:300]:  # 1.5 s of IMU: records older than max_hold_s would go to the stage now
+            live.telemetry(sample)
+        while_busy = [live.answer(k, 0.05 + 0.05 * k) for k in range(2, 6)]
+        assert len(stage.records) == 0  # held, not lost: the stage could not take them
+        stage.release.set()
+        assert done.fed.acquire(timeout=10)
+        for sample in imu[300:]:
+            live.telemetry(sample)
+        after = live.answer(7, 0.4)
+    finally:
+        stage.release.set()
+        live.close()
+    assert [a.timestamp for a in while_busy] == [0.05 + 0.05 * k for k in range(2, 6)]
+    for answer in while_busy:
+        np.testing.assert_array_equal(answer.estimate.T_world_cam, before.estimate.T_world_cam)
+    assert [r.timestamp for r in stage.records] == [s.timestamp for s in imu]  # every record, in order, once
+    np.testing.assert_allclose(after.estimate.T_world_cam, map_pose(trajectory, 0.05))
+
+
 class _VisionThatFails(Estimator):
     """Loses its vision process (or cluster worker) on the second frame."""
 

@@ -18,7 +18,11 @@ vision worker share the :class:`~evp.pipeline.Pipeline`:
 
 The stages are pure and single-threaded; here each call into them holds one lock, so telemetry,
 predictions and visual updates never interleave inside a stage. The estimator runs outside the
-lock. ``at_once=False`` answers each frame by the pipeline's sinks after the estimator and the
+lock. The link's thread never waits long for it: a stage's call can take a while (the
+visual-inertial start's refinement, up to ~0.2 s on two cores), and a link blocked that long lets
+frames pile up and be dropped. Telemetry is held under a lock of its own and given to the stages
+only when their lock is free; an answer waits at most ``ANSWER_WAIT_S`` for it, else it is the
+previous answer's pose at the new time. ``at_once=False`` answers each frame by the pipeline's sinks after the estimator and the
 stages (the caller bounds what is in flight).
 """
 
@@ -36,6 +40,10 @@ from evp.types import Frame, PoseEstimate
 # The vision thread hands the held telemetry to the stages this many records at a time (the lock
 # taken for each batch): 20 IMU steps of the filter take a few ms, so an answer waits no longer.
 RELEASE_BATCH = 20
+# An answer waits this long at most for the stages' lock: a visual update holds it ~2 ms, the
+# visual-inertial start's solve up to ~200 ms; a frame period (33 ms) is the most a vehicle's
+# answer may be late.
+ANSWER_WAIT_S = 0.01
 
 
 @dataclass(frozen=True)
@@ -106,8 +114,11 @@ class LivePipeline:
         self.pipeline = pipeline
         self.at_once = at_once
         self.max_hold_s = max_hold_s
-        self._lock = threading.RLock()  # the stages' calls, and the telemetry held for them
+        self._lock = threading.RLock()  # the stages' calls
+        self._held_lock = threading.Lock()  # the telemetry held for them (taken after _lock, never before)
         self._held: deque[TelemetryRecord] = deque()
+        self._last_answer: PoseEstimate | None = None
+        self._stage_jumps = 0  # the stages' changes of frame at the last answer that could read them
         self._stages = list(pipeline.stages)
         pipeline.stages = [_LockedStage(stage, self._lock) for stage in self._stages]
         self._latest = _Latest(pipeline.estimator)
@@ -134,21 +145,29 @@ class LivePipeline:
         return self._lock
 
     def telemetry(self, record: TelemetryRecord) -> None:
-        """Held for vision; what vision left waiting longer than ``max_hold_s`` goes on now."""
-        with self._lock:
+        """Held for vision; what vision left waiting longer than ``max_hold_s`` goes on now, or
+        with a later record when a stage is busy."""
+        with self._held_lock:
             self._held.append(record)
-            self._release(record.timestamp - self.max_hold_s)
+        if self._lock.acquire(blocking=False):
+            try:
+                self._release(record.timestamp - self.max_hold_s)
+            finally:
+                self._lock.release()
 
     def _release(self, until: float, batch: int | None = None) -> bool:
         """The held records up to ``until`` to the stages (the lock held), at most ``batch`` of
         them; True when some are left."""
         count = 0
-        while self._held and self._held[0].timestamp <= until:
-            if batch is not None and count == batch:
-                return True
-            self.pipeline.telemetry(self._held.popleft())
+        while True:
+            with self._held_lock:
+                if not (self._held and self._held[0].timestamp <= until):
+                    return False
+                if batch is not None and count == batch:
+                    return True
+                record = self._held.popleft()
+            self.pipeline.telemetry(record)
             count += 1
-        return False
 
     def frame(self, frame: Frame) -> LiveAnswer | None:
         """Hand a frame to the estimator (newest first); with ``at_once`` its answer now, else
@@ -160,12 +179,23 @@ class LivePipeline:
         return answer
 
     def answer(self, seq: int, timestamp: float) -> LiveAnswer:
-        with self._lock:
-            estimate = self.pipeline.predict(timestamp, list(self._held))
-            stage_jumps = sum(int(getattr(stage, "world_changes", 0)) for stage in self._stages)
+        """The stages' prediction for the frame; while a stage is busy beyond ``ANSWER_WAIT_S``,
+        the previous answer's pose at this time; before any stage predicts, the estimator's last."""
+        estimate, stage_jumps = None, self._stage_jumps
+        if self._lock.acquire(timeout=ANSWER_WAIT_S):
+            try:
+                with self._held_lock:
+                    pending = list(self._held)
+                estimate = self.pipeline.predict(timestamp, pending)
+                stage_jumps = self._stage_jumps = sum(int(getattr(stage, "world_changes", 0)) for stage in self._stages)
+            finally:
+                self._lock.release()
+        elif self._last_answer is not None:
+            estimate = replace(self._last_answer, timestamp=timestamp)
         latest = self._latest
         if estimate is None and latest.estimate is not None:
             estimate = replace(latest.estimate, timestamp=timestamp)
+        self._last_answer = estimate
         age = None if latest.tracked_at is None else max(0.0, timestamp - latest.tracked_at)
         return LiveAnswer(seq, timestamp, estimate, age, latest.jumps + stage_jumps)
 

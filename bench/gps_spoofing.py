@@ -3,7 +3,7 @@ navigation stage (vision + IMU + barometer + GPS while the trust monitor says so
 with no alignment at all, in ENU at the take-off point.
 
 Usage: python bench/gps_spoofing.py [--duration 300] [--spoof-start 150] [--outage-start 80]
-       [--fps 10] [--dataset DIR] [--out runs/gps_spoofing]
+       [--fps 10] [--dataset DIR] [--keep-answers FILE | --answers FILE] [--set KEY=VALUE ...]
 
 The issue's case (the full command; ~5 min to render and ~5 min of SLAM on two free cores):
     python bench/gps_spoofing.py --duration 300 --spoof-start 150 --outage-start 80
@@ -153,37 +153,48 @@ def main() -> None:
     parser.add_argument("--fps", type=float, default=10.0)
     parser.add_argument("--dataset", type=Path, help="a drone-flight render to use instead of rendering one")
     parser.add_argument("--keep-answers", type=Path, help="pickle SLAM's answers here (a scratch file for tuning the stage)")
+    parser.add_argument("--answers", type=Path, help="SLAM's answers pickled by --keep-answers on the same --dataset: the stage alone, no SLAM run")
+    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="navigation settings for this run (rows kept apart)")
     args = parser.parse_args()
+    overrides = dict(item.split("=", 1) for item in args.set)
     command = (
         f"python bench/gps_spoofing.py --duration {args.duration:g} --spoof-start {args.spoof_start:g} --outage-start {args.outage_start:g} --fps {args.fps:g}"
+        + (f" --set {' '.join(args.set)}" if args.set else "")
     )
     print(f"command: {command}  ({platform.node()}, {platform.machine()})\n")
     table = Results("gps_spoofing", command).table(
         "cases",
         COLUMNS,
-        key=["case", "duration_s"],
+        key=["case", "duration_s", "settings"],
         caption="Rendered drone flight (60 m, 6 m/s), vision + IMU + barometer + GPS; errors against the truth, no alignment",
     )
     with tempfile.TemporaryDirectory() as tmp:
         dataset = open_dataset(args.dataset or _render(args, Path(tmp) / "flight"))
         settings = resolve_settings(Settings(estimator="slam"), dataset)
-        settings.navigation = settings.navigation.model_copy(update=FLIGHT_NAVIGATION)
-        estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
-        recorder = _Recorder(estimator)
-        slam = run_dataset(dataset, estimator, stages=[recorder])
+        settings.navigation = Settings.model_validate(
+            {"navigation": {**settings.navigation.model_dump(), **FLIGHT_NAVIGATION, **overrides}}
+        ).navigation
+        if args.answers:
+            with args.answers.open("rb") as handle:
+                answers, trajectory = pickle.load(handle)
+        else:
+            estimator = make_estimator(camera_for(dataset, settings), settings, dataset)
+            recorder = _Recorder(estimator)
+            answers, trajectory = recorder.answers, run_dataset(dataset, estimator, stages=[recorder]).trajectory()
         if args.keep_answers:  # SLAM's answers, to rerun the stage alone (see --answers)
             with args.keep_answers.open("wb") as handle:
-                pickle.dump((recorder.answers, slam.trajectory()), handle)
+                pickle.dump((answers, trajectory), handle)
         t0 = dataset.frame_times[0]
-        reference_scale = evaluate(dataset.ground_truth, slam.trajectory(), settings.eval).alignment.scale
+        reference_scale = evaluate(dataset.ground_truth, trajectory, settings.eval).alignment.scale
         cruise_end = dataset.frame_times[-1] - 60.0 / CLIMB_M_S - 2.0  # before the landing (60 m at 3 m/s, 2 s on the ground)
         print(table.header())
-        stage, result = _stage_run(dataset, recorder.answers, dataset.gps, settings)
-        print(table.add(_record("spoofed", stage, result, dataset, settings, (t0 + args.spoof_start, cruise_end), reference_scale, t0)), flush=True)
+        stage, result = _stage_run(dataset, answers, dataset.gps, settings)
+        changes = {"settings": " ".join(args.set) or None}  # part of each row's key: a run with --set keeps the defaults' rows
+        print(table.add({**_record("spoofed", stage, result, dataset, settings, (t0 + args.spoof_start, cruise_end), reference_scale, t0), **changes}), flush=True)
         jammed = _jammed_gps(dataset, args.outage_start)
-        stage, result = _stage_run(dataset, recorder.answers, jammed, settings)
+        stage, result = _stage_run(dataset, answers, jammed, settings)
         window = (t0 + args.outage_start, t0 + args.outage_start + OUTAGE_S)
-        print(table.add(_record("jammed 60 s", stage, result, dataset, settings, window, reference_scale, t0)), flush=True)
+        print(table.add({**_record("jammed 60 s", stage, result, dataset, settings, window, reference_scale, t0), **changes}), flush=True)
 
 
 if __name__ == "__main__":

@@ -346,8 +346,8 @@ class NavigationSettings(_Section):
         description="inertial refinement: the filter starts only once the refined scale's 1-sigma is below this share (the rendered circle: 7.6-9.2 s into the walk at 4 %; 3 % was never reached within 10 s windows)",
     )
     vi_init_refine: bool = Field(
-        False,
-        description="visual-inertial initialisation: start the filter from the maximum-likelihood refinement (ORB-SLAM3's inertial-only optimisation, evp.fusion.inertial_refinement) over every keyframe since the first, seeded by the newest window's linear alignment, once its scale sigma is under vi_refine_max_scale_sigma; rendered circle seeds 1-3 SE3 ATE 7.7/5.4/2.2 -> 1.5/3.5/2.0 cm, EuRoC MH01 6.6 -> 6.0 mm, but the start comes later (4-9 s into the walk) and the drone flight is not measured with it: off by default",
+        True,
+        description="visual-inertial initialisation: when the newest window's linear alignment leaves the scale undetermined (its sigma, with what an accelerometer bias of initial_accel_bias_sigma could move it by, over vi_init_max_scale_sigma), that alignment seeds the maximum-likelihood refinement (ORB-SLAM3's inertial-only optimisation, evp.fusion.inertial_refinement) over every keyframe since the first, which starts the filter once its scale sigma is under vi_refine_max_scale_sigma: a walker's slow circle, whose scale a bias along its centripetal acceleration mimics (rendered circle SE3 ATE 7.7/5.4/2.2 -> 2.2/1.8/2.6 cm)",
     )
 
 

@@ -41,9 +41,14 @@ def _frames(times):
     return [Frame(float(t), np.zeros((2, 2), np.uint8), i) for i, t in enumerate(times)]
 
 
+# the tests' IMU is exact and unbiased, and the stage is told so (the accelerometer bias prior):
+# exact poses then give the scale as soon as the alignment has its keyframes
+EXACT_IMU = NavigationSettings(initial_accel_bias_sigma=0.005)
+
+
 def _run(estimates, imu, resets=None, settings=None):
     estimator = _Answers(estimates, resets)
-    stage = NavigationStage(T_BODY_CAM, settings or NavigationSettings(), lambda: estimator.reset_counter)
+    stage = NavigationStage(T_BODY_CAM, settings or EXACT_IMU, lambda: estimator.reset_counter)
     result = run_frames(estimator, _frames([e.timestamp for e in estimates]), stages=[stage], telemetry=imu)
     return stage, result
 
@@ -102,7 +107,7 @@ def test_an_unannounced_jump_of_the_map_is_re_anchored_once_the_gate_has_refused
     jump = 50  # from frame 50 (2.5 s) the map is 3 m off in the world, the reset counter unchanged
     moved = {"t_world_map": T_WORLD_MAP + [3.0, 0.0, 0.0]}
     estimates = [PoseEstimate(float(t), map_pose(trajectory, t, **(moved if i >= jump else {})), TrackingState.OK) for i, t in enumerate(times)]
-    settings = NavigationSettings(visual_jump_reset_s=0.5)
+    settings = EXACT_IMU.model_copy(update={"visual_jump_reset_s": 0.5})
     stage, result = _run(estimates, trajectory.imu(imu_times(DURATION_S)), settings=settings)
     refused = [r.visual.timestamp for r in stage.records if r.visual is not None and not r.visual.accepted]
     assert refused == list(times[jump : jump + 10])  # 0.5 s of them at 20 fps, then the one that re-anchors is fused

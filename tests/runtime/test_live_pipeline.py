@@ -16,7 +16,7 @@ from evp.runtime.live_pipeline import LivePipeline
 from evp.types import Frame, PoseEstimate, TrackingState
 from tests.fusion.inertial_trajectory import SinusoidTrajectory, imu_times
 from tests.fusion.test_navigation_filter import T_BODY_CAM
-from tests.fusion.test_navigation_stage import map_pose
+from tests.fusion.test_navigation_stage import EXACT_IMU, map_pose
 
 FRAME_RATE = 20.0
 
@@ -56,7 +56,7 @@ def _frame(index: int, t: float) -> Frame:
 def test_frames_are_answered_at_once_from_the_filter_while_vision_is_busy():
     trajectory = SinusoidTrajectory()
     vision = _GatedVision(trajectory)
-    stage = NavigationStage(T_BODY_CAM, NavigationSettings(), lambda: vision.reset_counter)
+    stage = NavigationStage(T_BODY_CAM, EXACT_IMU, lambda: vision.reset_counter)
     done = _Done()
     live = LivePipeline(Pipeline(vision, [done], [stage]))
     imu = iter(trajectory.imu(imu_times(6.0)))
@@ -105,7 +105,7 @@ def test_frames_are_answered_at_once_from_the_filter_while_vision_is_busy():
     assert np.all(np.diff(ages) > 0) and ages[-1] > 0.9
     # and where the same pipeline run offline, with vision on every frame, puts the camera
     reference = run_frames(
-        _GatedVision(trajectory), [_frame(k, k / FRAME_RATE) for k in range(81)], stages=[NavigationStage(T_BODY_CAM)],
+        _GatedVision(trajectory), [_frame(k, k / FRAME_RATE) for k in range(81)], stages=[NavigationStage(T_BODY_CAM, EXACT_IMU)],
         telemetry=trajectory.imu(imu_times(4.01)),
     ).estimates  # fmt: skip
     for answer in stalled:

@@ -70,6 +70,22 @@ def gyro_attitudes(R_visual: Sequence[np.ndarray], pre: Sequence[Preintegrated])
     return [R0 @ C @ so3_exp(J @ bias) for C, J in zip(chain, jacobian, strict=True)], bias
 
 
+def white_position_noise(times: np.ndarray, positions: np.ndarray) -> np.ndarray | None:
+    """The white noise of a track's positions (1 sigma per axis, the positions' units)
+    from their second differences over consecutive poses, which cancel the motion to within its
+    acceleration times dt^2 (1e-4 m at 30 fps and 0.1 m/s^2): each is sqrt(1 + (1 + r)^2 + r^2)
+    sigma for steps in the ratio r. Median absolute deviations: a turn's samples do not count.
+    None for fewer than 8 poses."""
+    t, p = np.asarray(times, float), np.asarray(positions, float)
+    if len(t) < 8:
+        return None
+    dt = np.diff(t)
+    r = (dt[1:] / dt[:-1])[:, None]
+    second = (p[2:] - p[1:-1] - r * (p[1:-1] - p[:-2])) / np.sqrt(1.0 + (1.0 + r) ** 2 + r**2)
+    mad = 1.4826 * np.median(np.abs(second - np.median(second, axis=0)), axis=0)
+    return mad
+
+
 def refine_inertial(
     keyframes: Sequence[tuple[float, np.ndarray]],
     imu: Sequence[ImuSample],
@@ -77,10 +93,14 @@ def refine_inertial(
     start: InertialAlignment,
     settings: NavigationSettings | None = None,
     visual_position_sigma_m: float | None = None,
+    position_sigma_map: np.ndarray | None = None,
 ) -> InertialAlignment:
     """``start`` (an observable alignment over the same ``keyframes`` and ``imu``) refined by
-    maximum likelihood; ``visual_position_sigma_m`` (default ``vi_refine_position_sigma_m``) is the keyframe
-    positions' noise in metres. The answer carries the accelerometer bias and the scale's
+    maximum likelihood. The keyframe positions' noise is ``visual_position_sigma_m`` in metres
+    (default ``vi_refine_position_sigma_m``: SLAM's refined poses on the rendered circle, drift
+    between keyframes included), or ``position_sigma_map`` per axis in map units where that is
+    larger (the white noise measured on the poses, :func:`white_position_noise`: a downward camera
+    at 60 m scatters ~5 cm, which a 7 mm prior took for exact and started the filter 27 % off). The answer carries the accelerometer bias and the scale's
     1-sigma from the weighted system (relative)."""
     s = settings or NavigationSettings()
     sigma_visual = s.vi_refine_position_sigma_m if visual_position_sigma_m is None else visual_position_sigma_m
@@ -146,7 +166,8 @@ def refine_inertial(
         A[:rows, S] = whitened_difference @ (centres.ravel() + errors)
         A[:rows, DC] = scale * whitened_difference
         b[:rows] = measured + scale * whitened_difference @ errors
-        A[rows + bias_rows :, DC] = np.eye(3 * n) * scale / sigma_visual
+        sigma = np.full(3, sigma_visual / scale) if position_sigma_map is None else np.maximum(position_sigma_map, sigma_visual / scale)
+        A[rows + bias_rows :, DC] = np.diag(np.tile(1.0 / sigma, n))
         A_t = scipy.sparse.csr_matrix(np.hstack([A[:, V], A[:, G] @ tangent, A[:, S:]]))
         # the normal equations: well conditioned once whitened; sparse (each interval touches its own
         # velocities, biases and positions): 60 keyframes solve in ~2 ms where a dense solve took 26

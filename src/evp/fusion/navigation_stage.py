@@ -44,6 +44,7 @@ a new map of its own), the georeference is dropped and the stage starts as witho
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
@@ -53,7 +54,7 @@ from evp.config import MonitorSettings, NavigationSettings
 from evp.fusion.geodesy import EnuFrame
 from evp.fusion.gps_heading import WorldAlignment, align_to_gps, horizontal_spread
 from evp.fusion.gps_monitor import GpsMonitor, GpsTrust
-from evp.fusion.inertial_refinement import refine_inertial
+from evp.fusion.inertial_refinement import refine_inertial, white_position_noise
 from evp.fusion.innovation import Innovation, UpdateStatus
 from evp.fusion.map_georeference import MapGeoreference
 from evp.fusion.measurements import BaroAltitude, GpsPosition, RangeHeight, VisualPose, WheelSpeed, YawRate
@@ -85,6 +86,8 @@ START_MAP_POSITION_SIGMA_M = 0.01
 # refinement needs the standing start, which is what makes a walker's scale observable (the
 # rendered circle's 10 s windows mid-lap left it at 11-13 % sigma).
 REFINE_KEYFRAMES = 120
+# the tracked poses whose second differences give the refinement its position noise: 2 s at 30 fps
+NOISE_POSES = 60
 # IMU samples kept while waiting to relocalise in a saved map: its start needs the one at or before
 # the relocalised frame, which a frame's telemetry (up to its stamp) always brings in (1 s at 200 Hz).
 SAVED_MAP_IMU_KEPT = 200
@@ -175,6 +178,7 @@ class NavigationStage:
         self._imu: list[ImuSample] = []  # before the filter starts: the samples the initialisation needs
         self._wheel: list[WheelOdometry] = []  # before the filter starts: the wheel records, for the wheel start
         self._keyframes: list[tuple[float, np.ndarray]] = []
+        self._recent: deque[tuple[float, np.ndarray]] = deque(maxlen=NOISE_POSES)  # before the start: the newest tracked positions
         self._baro: list[tuple[float, float]] = []  # before the filter starts: heights to check the initialisation's scale
         self._last_imu_stamp = -math.inf
         self._ground_height_m: float | None = None  # the range finder's ground, in world z, from its first reading
@@ -463,6 +467,7 @@ class NavigationStage:
         self._last_reset_count = count
         if self.filter is None:
             self._keyframes.clear()  # the poses so far belong to another map (or before a jump)
+            self._recent.clear()
             if self.map_georeference is not None and estimate.tracking_state is not TrackingState.RELOCALIZED:
                 self._leave_saved_map(estimate.timestamp)
             return
@@ -476,6 +481,7 @@ class NavigationStage:
         window's alignment (however uncertain) seeds the inertial refinement over every 2nd
         keyframe since the first, which starts the filter once its scale's sigma is small enough."""
         s = self.settings
+        self._recent.append((estimate.timestamp, estimate.T_world_cam[:3, 3].copy()))
         if self._keyframes and estimate.timestamp - self._keyframes[-1][0] < s.vi_init_keyframe_interval_s:
             return
         self._keyframes.append((estimate.timestamp, estimate.T_world_cam))
@@ -494,9 +500,10 @@ class NavigationStage:
                 alignment = initialise_visual_inertial(window, self._imu, self.T_body_cam, s.model_copy(update={"vi_init_max_scale_sigma": 1.0}))
             else:
                 alignment = initialise_visual_inertial(window, self._imu, self.T_body_cam, s)
-            if alignment.observable and s.vi_init_refine:
+            if alignment.observable and s.vi_init_refine and alignment.scale_sigma > s.vi_init_max_scale_sigma:
                 history = self._keyframes[::-2][::-1]  # every keyframe since the first, 0.5 s apart
-                alignment = refine_inertial(history, self._imu, self.T_body_cam, alignment, s)
+                noise = white_position_noise(*zip(*self._recent, strict=True)) if len(self._recent) >= 8 else None
+                alignment = refine_inertial(history, self._imu, self.T_body_cam, alignment, s, position_sigma_map=noise)
                 window = history
                 if alignment.observable and not alignment.scale_sigma <= s.vi_refine_max_scale_sigma:
                     reasons.append(f"refined scale not yet determined: +-{100 * alignment.scale_sigma:.1f} %")

@@ -151,7 +151,9 @@ def initialise_visual_inertial(
         solution = x
         scale = x[3 * n + 2]
     gravity = gravity / np.linalg.norm(gravity) * s.gravity_m_s2
-    relative_sigma = _scale_sigma(A_t, b - A[:, 3 * n : 3 * n + 3] @ gravity, solution) / scale
+    noise_sigma = _scale_sigma(A_t, b - A[:, 3 * n : 3 * n + 3] @ gravity, solution)
+    bias_sigma = _scale_sigma_from_bias(A_t, R_body, pre, s.initial_accel_bias_sigma)
+    relative_sigma = float(np.hypot(noise_sigma, bias_sigma)) / scale
     if not relative_sigma <= s.vi_init_max_scale_sigma:
         return InertialAlignment(
             False,
@@ -159,6 +161,22 @@ def initialise_visual_inertial(
             acceleration_std_m_s2=excitation,
         )
     return InertialAlignment(True, "", float(scale), gravity, solution[: 3 * n].reshape(n, 3), gyro_bias, excitation, float(relative_sigma))
+
+
+def _scale_sigma_from_bias(A: np.ndarray, R_body: Sequence[np.ndarray], pre: Sequence, bias_sigma: float) -> float:
+    """1-sigma of the scale that an accelerometer bias of ``bias_sigma`` per axis (constant, body
+    axes), left out of the solve, brings into it: a consider analysis (Schmidt). The bias moves
+    each interval's preintegrated position and velocity by their bias Jacobians; the solve maps
+    that to a scale shift. While the motion is small (a standing start, a slow walk's first
+    steps) a plausible bias explains as much of the IMU's displacements as the scale does, and
+    the residual alone cannot tell: the rendered circle's standing start gave +45 %, with a
+    least-squares sigma under 10 %."""
+    rows = []
+    for k, p in enumerate(pre):
+        rows.append(R_body[k] @ p.dp_dba)
+        rows.append(R_body[k] @ p.dv_dba)
+    shift = np.linalg.lstsq(A, np.vstack(rows), rcond=None)[0][-1]  # d scale / d bias, (3,)
+    return float(bias_sigma * np.linalg.norm(shift))
 
 
 def _scale_sigma(A: np.ndarray, b: np.ndarray, x: np.ndarray) -> float:

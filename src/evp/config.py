@@ -332,6 +332,11 @@ class NavigationSettings(_Section):
         gt=0,
         description="visual-inertial initialisation: a scale whose least-squares 1-sigma is above this share is not yet determined (the filter starts with this scale uncertainty); a walker's first steps after standing gave 0.39 m/unit for 1.26",
     )
+    vi_init_accel_bias_sigma: float = Field(
+        0.1,
+        ge=0,
+        description="visual-inertial initialisation: the accelerometer bias (1 sigma per axis, m/s^2) the linear alignment allows for; its scale sigma includes what such a bias, which the solve leaves out, could move the scale by, so a start on a sway or a slow walk's first steps waits (a calibrated MEMS accelerometer's offset; measured against 0.05 and 0.2 on the rendered circle, drone flights and EuRoC MH01: docs/decisions.md)",
+    )
     vi_init_max_gravity_error_m_s2: float = Field(
         0.5, gt=0, description="visual-inertial initialisation: a solved gravity whose magnitude is further than this from g is refused (VINS-Mono: 0.5)"
     )
@@ -347,7 +352,7 @@ class NavigationSettings(_Section):
     )
     vi_init_refine: bool = Field(
         True,
-        description="visual-inertial initialisation: when the newest window's linear alignment leaves the scale undetermined (its sigma, with what an accelerometer bias of initial_accel_bias_sigma could move it by, over vi_init_max_scale_sigma), that alignment seeds the maximum-likelihood refinement (ORB-SLAM3's inertial-only optimisation, evp.fusion.inertial_refinement) over every keyframe since the first, which starts the filter once its scale sigma is under vi_refine_max_scale_sigma: a walker's slow circle, whose scale a bias along its centripetal acceleration mimics (rendered circle SE3 ATE 7.7/5.4/2.2 -> 2.2/1.8/2.6 cm)",
+        description="visual-inertial initialisation: when the newest window's linear alignment leaves the scale undetermined (its sigma, with what an accelerometer bias of vi_init_accel_bias_sigma could move it by, over vi_init_max_scale_sigma), that alignment seeds the maximum-likelihood refinement (ORB-SLAM3's inertial-only optimisation, evp.fusion.inertial_refinement) over every keyframe since the first, which starts the filter once its scale sigma is under vi_refine_max_scale_sigma: a walker's slow circle, whose scale a bias along its centripetal acceleration mimics (rendered circle SE3 ATE 8.8/7.5/1.8 -> 2.2/2.7/2.6 cm)",
     )
 
 

@@ -43,7 +43,7 @@ def _frames(times):
 
 # the tests' IMU is exact and unbiased, and the stage is told so (the accelerometer bias prior):
 # exact poses then give the scale as soon as the alignment has its keyframes
-EXACT_IMU = NavigationSettings(initial_accel_bias_sigma=0.005)
+EXACT_IMU = NavigationSettings(vi_init_accel_bias_sigma=0.0)
 
 
 def _run(estimates, imu, resets=None, settings=None):

@@ -152,7 +152,7 @@ def initialise_visual_inertial(
         scale = x[3 * n + 2]
     gravity = gravity / np.linalg.norm(gravity) * s.gravity_m_s2
     noise_sigma = _scale_sigma(A_t, b - A[:, 3 * n : 3 * n + 3] @ gravity, solution)
-    bias_sigma = _scale_sigma_from_bias(A_t, R_body, pre, s.initial_accel_bias_sigma)
+    bias_sigma = _scale_sigma_from_bias(A_t, R_body, pre, s.vi_init_accel_bias_sigma)
     relative_sigma = float(np.hypot(noise_sigma, bias_sigma)) / scale
     if not relative_sigma <= s.vi_init_max_scale_sigma:
         return InertialAlignment(
@@ -169,7 +169,7 @@ def _scale_sigma_from_bias(A: np.ndarray, R_body: Sequence[np.ndarray], pre: Seq
     each interval's preintegrated position and velocity by their bias Jacobians; the solve maps
     that to a scale shift. While the motion is small (a standing start, a slow walk's first
     steps) a plausible bias explains as much of the IMU's displacements as the scale does, and
-    the residual alone cannot tell: the rendered circle's standing start gave +45 %, with a
+    the residual alone cannot tell: the rendered circle's standing sway gave +45 %, with a
     least-squares sigma under 10 %."""
     rows = []
     for k, p in enumerate(pre):

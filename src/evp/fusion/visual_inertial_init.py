@@ -151,6 +151,8 @@ def initialise_visual_inertial(
         solution = x
         scale = x[3 * n + 2]
     gravity = gravity / np.linalg.norm(gravity) * s.gravity_m_s2
+    if not scale > 0:  # gravity's magnitude imposed can turn it: its relative sigma would then pass any bound
+        return InertialAlignment(False, f"inconsistent solution: scale {scale:.3g} once gravity's magnitude is imposed", acceleration_std_m_s2=excitation)
     noise_sigma = _scale_sigma(A_t, b - A[:, 3 * n : 3 * n + 3] @ gravity, solution)
     bias_sigma = _scale_sigma_from_bias(A_t, R_body, pre, s.vi_init_accel_bias_sigma)
     relative_sigma = float(np.hypot(noise_sigma, bias_sigma)) / scale

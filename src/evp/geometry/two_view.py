@@ -69,7 +69,6 @@ class TwoViewResult:
     good: np.ndarray  # mask over the matches
     model: str  # "homography" or "fundamental"
     parallax_deg: float
-    parallax_rows: np.ndarray  # the matches carrying it: the (up to) 51 good ones of widest parallax
 
 
 def _homography_score(H21: np.ndarray, p1: np.ndarray, p2: np.ndarray, sigma: float) -> tuple[float, np.ndarray]:
@@ -123,11 +122,10 @@ def _best_motion(
         points = triangulate(T1, T2, x1, x2)
         good, cos = check_points(points, T1, T2, x1, x2, focal, 4.0, 4.0, min_parallax_cos=1.0)
         good &= inlier
-        widest = np.flatnonzero(good)[np.argsort(cos[good], kind="stable")[:51]]  # ORB-SLAM's parallax: the 51st widest
-        parallax = float(np.degrees(np.arccos(np.clip(cos[widest[-1]], -1, 1)))) if good.sum() else 0.0
-        results.append((int(good.sum()), parallax, T2, points, good, cos, widest))
+        parallax = float(np.degrees(np.arccos(np.clip(np.sort(cos[good])[min(50, good.sum() - 1)], -1, 1)))) if good.sum() else 0.0
+        results.append((int(good.sum()), parallax, T2, points, good, cos))
     results.sort(key=lambda r: -r[0])
-    n_good, parallax, T2, points, good, cos, widest = results[0]
+    n_good, parallax, T2, points, good, cos = results[0]
     second = results[1][0] if len(results) > 1 else 0
     if n_good < max(min_triangulated, int(0.9 * inlier.sum())) or second > ambiguity_ratio * n_good or parallax < min_parallax_deg:
         return None
@@ -139,7 +137,7 @@ def _best_motion(
         return None
     good &= check_points(points, T1, T2, x1, x2, focal, 4.0, 4.0, INITIAL_POINT_PARALLAX_COS)[0]
     T2, points[good] = _refine(T2, points[good], x1[good], x2[good], focal)
-    return TwoViewResult(T2, points, good, model, parallax, widest)
+    return TwoViewResult(T2, points, good, model, parallax)
 
 
 def _refine(T2: np.ndarray, points: np.ndarray, x1: np.ndarray, x2: np.ndarray, focal: float) -> tuple[np.ndarray, np.ndarray]:

@@ -26,7 +26,7 @@ import numpy as np
 from evp.config import OrbSettings, SlamSettings
 from evp.estimator import Estimator
 from evp.geometry.transforms import scale_motion, se3_inverse
-from evp.geometry.two_view import TwoViewResult, initial_two_view
+from evp.geometry.two_view import initial_two_view
 from evp.slam.local_mapping import LocalMapper, NewKeyFrame
 from evp.slam.loop_closing import LoopClosure
 from evp.slam.map import KeyFrame, Map
@@ -79,8 +79,6 @@ class _InitReference:
     features: Features
     record: int  # index of its record in SlamSystem.records
     last_matches: int = field(init=False)  # matched at the last try (its keypoint count at first)
-    last_parallax_deg: float = 0.0  # the last try's parallax
-    last_widest: np.ndarray | None = None  # the reference's features that carried it
 
     def __post_init__(self) -> None:
         self.last_matches = len(self.features)
@@ -94,23 +92,6 @@ class _InitReference:
         expiring = matches * matches < needed * self.last_matches
         self.last_matches = matches
         return expiring
-
-    def past_its_best(self, result: TwoViewResult | None, rows: np.ndarray) -> bool:
-        """Whether the parallax fell since the last try because the points that carried it have
-        left: fewer than half of the last try's widest-parallax points are still matched. A
-        forward motion's near points, which give a start its parallax, leave the view within a
-        few frames while the distant ones gain little, so the parallax a reference reaches peaks
-        and falls; a parallax that falls while its points stay (a hovering start's noise) is not
-        this. ``rows`` are the reference's features of the try's matches; remembers this try's
-        parallax and its points for the next."""
-        if result is None:
-            self.last_parallax_deg, self.last_widest = 0.0, None
-            return False
-        previous, widest = self.last_widest, rows[result.parallax_rows]
-        left = previous is not None and 2 * np.isin(previous, rows).sum() < len(previous)
-        fell = result.parallax_deg < self.last_parallax_deg
-        self.last_parallax_deg, self.last_widest = result.parallax_deg, widest
-        return bool(left and fell)
 
 
 @dataclass
@@ -164,10 +145,6 @@ class SlamSystem(Estimator):
         self.reset_counter = 0  # bumped on relocalisation and restart (a discontinuity for consumers)
         self._init_reference: _InitReference | None = None
         self._before_start: deque[tuple[int, Features]] = deque(maxlen=self.settings.start_backfill_frames)  # (record index, features)
-        # frames tracked in a map of at most slam.restart_max_keyframes (the start's reference's
-        # record first, its features already waiting in _before_start): a restart puts them back
-        # there; None once the map is past that size (or came saved)
-        self._young_map: list[tuple[int, Features | None]] | None = None
         self._last: _TrackedFrame | None = None
         self._velocity: np.ndarray | None = None  # motion between the last two tracked frames
         self._velocity_dt = 0.0  # their time apart (s)
@@ -200,19 +177,14 @@ class SlamSystem(Estimator):
         with self.map.lock:
             if self.state == TrackingState.NOT_INITIALIZED:
                 T_cw = self._initialise(frame, features)
+                if T_cw is None:
+                    self._before_start.append((len(self.records), features))  # this frame's record comes next
             elif self.state == TrackingState.LOST:
                 T_cw = self._relocalise(frame.timestamp, features)
                 if T_cw is None:
                     self._give_up_saved_map(frame.timestamp)
             else:
                 T_cw = self._track(frame.timestamp, features)
-            if T_cw is None and self.state == TrackingState.NOT_INITIALIZED:
-                self._before_start.append((len(self.records), features))  # this frame's record comes next
-            elif T_cw is not None and self._young_map is not None:
-                # a map that may still be discarded: its frames' features are kept until it cannot
-                self._young_map.append((len(self.records), features))
-                if len(self.map.keyframes) > self.settings.restart_max_keyframes:
-                    self._young_map = None
             estimate = self._answer(frame, T_cw)
         self.tracking_ms.append((time.perf_counter() - start) * 1000.0)
         return estimate
@@ -361,19 +333,15 @@ class SlamSystem(Estimator):
             ref.normalised[rows],
             features.normalised[cols],
             self.camera.fx,
-            min(s.init_min_parallax_deg, EXPIRING_MIN_PARALLAX_DEG),
+            min(s.init_min_parallax_deg, EXPIRING_MIN_PARALLAX_DEG) if expiring else s.init_min_parallax_deg,
             s.init_min_triangulated,
             s.homography_ratio,
             parallel=self.scheduler.parallel,
         )
-        past_best = reference.past_its_best(result, rows)
         if result is None or result.good.sum() < s.init_min_triangulated:
             return None
-        if result.parallax_deg < s.init_min_parallax_deg:
-            if not (expiring or past_best):
-                return None  # the parallax is still growing: wait for the nominal one
-            if result.parallax_deg * np.sqrt(result.good.sum()) < s.init_min_parallax_deg * np.sqrt(s.init_min_triangulated):
-                return None  # the lower parallax must be made up by more points
+        if expiring and result.parallax_deg * np.sqrt(result.good.sum()) < s.init_min_parallax_deg * np.sqrt(s.init_min_triangulated):
+            return None  # the lower parallax must be made up by more points
         kf0 = self.map.add_keyframe(self.records[reference.record].timestamp, np.eye(4), ref, self._bow(ref))
         kf1 = self.map.add_keyframe(frame.timestamp, result.T21, features, self._bow(features))
         for a, b, position in zip(rows[result.good], cols[result.good], result.points[result.good], strict=True):
@@ -391,7 +359,6 @@ class SlamSystem(Estimator):
         self.map.update_covisibility(kf1)
         first = self.records[reference.record]
         first.reference_kf, first.T_frame_ref, first.state = kf0.id, np.eye(4), TrackingState.OK
-        self._young_map = [(reference.record, None)]
         self._init_reference = None
         self._reference_kf = kf1.id
         self._last_kf_frame = self._frame_count
@@ -425,15 +392,7 @@ class SlamSystem(Estimator):
         """Tracking lost a map of a few keyframes: the start was wrong (too few points, or a
         climb along the optical axis with too little parallax), and relocalising against it
         rarely succeeds. ORB-SLAM resets such a map; so does this, and initialises again. The
-        frames tracked in it leave the live trajectory (they had that map's scale and frame) and
-        wait, as the frames before a start do, to be localised in the final map (at a low frame
-        rate a forward drive's first map can be lost within a few frames: KITTI 06 at 3.3 Hz lost
-        its first 6 frames so)."""
-        for index, features in self._young_map or []:
-            self.records[index].state = TrackingState.NOT_INITIALIZED
-            if features is not None:
-                self._before_start.append((index, features))
-        self._young_map = None
+        frames tracked in it leave the trajectory (they had that map's scale and frame)."""
         self._discard_map()
         self.state = TrackingState.NOT_INITIALIZED
         self._init_reference = None

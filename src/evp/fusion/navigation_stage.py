@@ -491,7 +491,7 @@ class NavigationStage:
         del self._imu[: max(0, keep - 1)]  # one sample at or before the oldest keyframe stays
         keep = next((i for i, w in enumerate(self._wheel) if w.timestamp >= oldest), len(self._wheel))
         del self._wheel[: max(0, keep - 1)]  # likewise one wheel record
-        reasons = []
+        reasons, refined = [], False
         for stride in VI_INIT_STRIDES:
             window = self._keyframes[::-stride][: s.vi_init_window_keyframes][::-1]
             if stride > 1 and len(window) < s.vi_init_min_keyframes:
@@ -501,13 +501,16 @@ class NavigationStage:
             else:
                 alignment = initialise_visual_inertial(window, self._imu, self.T_body_cam, s)
             if alignment.observable and s.vi_init_refine and alignment.scale_sigma > s.vi_init_max_scale_sigma:
-                history = self._keyframes[::-2][::-1]  # every keyframe since the first, 0.5 s apart
-                noise = white_position_noise(*zip(*self._recent, strict=True)) if len(self._recent) >= 8 else None
-                alignment = refine_inertial(history, self._imu, self.T_body_cam, alignment, s, position_sigma_map=noise)
-                window = history
-                if alignment.observable and not alignment.scale_sigma <= s.vi_refine_max_scale_sigma:
-                    reasons.append(f"refined scale not yet determined: +-{100 * alignment.scale_sigma:.1f} %")
-                    break  # the refinement is over the same keyframes whichever window seeded it: once an attempt
+                if refined:  # the refinement is over the same keyframes whichever window seeds it: once an attempt
+                    alignment = replace(alignment, observable=False, reason=f"scale not yet determined: +-{100 * alignment.scale_sigma:.0f} %")
+                else:
+                    refined = True
+                    history = self._keyframes[::-2][::-1]  # every keyframe since the first, 0.5 s apart
+                    noise = white_position_noise(*zip(*self._recent, strict=True)) if len(self._recent) >= 8 else None
+                    alignment = refine_inertial(history, self._imu, self.T_body_cam, alignment, s, position_sigma_map=noise)
+                    window = history
+                    if alignment.observable and not alignment.scale_sigma <= s.vi_refine_max_scale_sigma:
+                        alignment = replace(alignment, observable=False, reason=f"refined scale not yet determined: +-{100 * alignment.scale_sigma:.1f} %")
             if alignment.observable:
                 contradiction = self._baro_contradiction(alignment, window)
                 if contradiction is None:

@@ -5,7 +5,7 @@ the bias, is off."""
 import numpy as np
 
 from evp.config import NavigationSettings
-from evp.fusion.inertial_refinement import refine_inertial
+from evp.fusion.inertial_refinement import refine_inertial, white_position_noise
 from evp.fusion.nav_state import so3_exp
 from evp.fusion.visual_inertial_init import initialise_visual_inertial
 from evp.types import PoseEstimate, TrackingState
@@ -73,3 +73,17 @@ def test_the_stage_starts_from_the_refined_alignment():
     assert stage.alignment.scale_sigma <= settings.vi_refine_max_scale_sigma
     assert abs(stage.alignment.scale / MAP_SCALE - 1.0) < 0.01
     assert np.linalg.norm(stage.alignment.accel_bias - ACCEL_BIAS) < 0.05
+
+
+def test_the_white_noise_of_a_track_is_measured_through_its_motion():
+    """Per axis, from second differences at irregular frame times: the sinusoid's motion (its
+    acceleration times dt^2 is 0.1 mm at 20 fps) does not count, a dropped frame does not either."""
+    trajectory = SinusoidTrajectory()
+    rng = np.random.default_rng(5)
+    times = np.sort(rng.choice(np.arange(0.0, 10.0, 1.0 / FRAME_RATE), 150, replace=False))
+    sigma = np.array([0.005, 0.01, 0.002])
+    positions = np.array([trajectory.position(t) for t in times]) + rng.normal(0.0, 1.0, (len(times), 3)) * sigma
+    measured = white_position_noise(times, positions)
+    np.testing.assert_allclose(measured, sigma, rtol=0.25)
+    assert white_position_noise(times[:7], positions[:7]) is None
+    assert white_position_noise(np.r_[times[:5], times[4:10]], np.r_[positions[:5], positions[4:10]]) is None  # a repeated time

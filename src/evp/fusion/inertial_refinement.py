@@ -75,11 +75,11 @@ def white_position_noise(times: np.ndarray, positions: np.ndarray) -> np.ndarray
     from their second differences over consecutive poses, which cancel the motion to within its
     acceleration times dt^2 (1e-4 m at 30 fps and 0.1 m/s^2): each is sqrt(1 + (1 + r)^2 + r^2)
     sigma for steps in the ratio r. Median absolute deviations: a turn's samples do not count.
-    None for fewer than 8 poses."""
+    None for fewer than 8 poses or times not increasing."""
     t, p = np.asarray(times, float), np.asarray(positions, float)
-    if len(t) < 8:
-        return None
     dt = np.diff(t)
+    if len(t) < 8 or not np.all(dt > 0):
+        return None
     r = (dt[1:] / dt[:-1])[:, None]
     second = (p[2:] - p[1:-1] - r * (p[1:-1] - p[:-2])) / np.sqrt(1.0 + (1.0 + r) ** 2 + r**2)
     mad = 1.4826 * np.median(np.abs(second - np.median(second, axis=0)), axis=0)

@@ -477,9 +477,11 @@ class NavigationStage:
     def _collect(self, estimate: PoseEstimate) -> None:
         """Keep the pose as a keyframe when it is far enough after the last, and try to initialise:
         over the newest window of keyframes, then over windows of every 2nd and 4th one
-        (:data:`VI_INIT_STRIDES`), from the IMU, else from the wheels. With ``vi_init_refine`` a
-        window's alignment (however uncertain) seeds the inertial refinement over every 2nd
-        keyframe since the first, which starts the filter once its scale's sigma is small enough."""
+        (:data:`VI_INIT_STRIDES`), from the IMU, else from the wheels. With ``vi_init_refine`` the
+        first window whose alignment leaves the scale undetermined seeds the inertial refinement
+        over every 2nd keyframe since the first (once an attempt), which starts the filter once its
+        scale's sigma is small enough; the refinement's position noise is measured on the newest
+        tracked poses."""
         s = self.settings
         self._recent.append((estimate.timestamp, estimate.T_world_cam[:3, 3].copy()))
         if self._keyframes and estimate.timestamp - self._keyframes[-1][0] < s.vi_init_keyframe_interval_s:
@@ -506,7 +508,7 @@ class NavigationStage:
                 else:
                     refined = True
                     history = self._keyframes[::-2][::-1]  # every keyframe since the first, 0.5 s apart
-                    noise = white_position_noise(*zip(*self._recent, strict=True)) if len(self._recent) >= 8 else None
+                    noise = white_position_noise([t for t, _ in self._recent], [p for _, p in self._recent])
                     alignment = refine_inertial(history, self._imu, self.T_body_cam, alignment, s, position_sigma_map=noise)
                     window = history
                     if alignment.observable and not alignment.scale_sigma <= s.vi_refine_max_scale_sigma:

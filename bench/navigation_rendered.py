@@ -5,7 +5,8 @@ alignment (no scale) with the scale known within 5 s of the walking start; the r
 of its path.
 
 Usage: python bench/navigation_rendered.py [--out runs/navigation_rendered] [--circle-seeds 1 2 3]
-       [--robot-seeds 1 2] [--robot-duration 30] [--reuse NAME=FOLDER ...] [--resume]
+       [--robot-seeds 1 2] [--robot-duration 30] [--real euroc_mh_01_easy_moving_360 ...]
+       [--reuse NAME=FOLDER ...] [--resume]
 
 Each case is rendered into --out (unless --reuse names an existing render of it, e.g.
 circle1=/tmp/circ1; the render's sim.yaml must show the same options) and run with `evp run`
@@ -16,6 +17,10 @@ the path, that of the fused poses as answered live, the Sim3 ATE of SLAM alone (
 the filter started and when its scale became known (sigma below navigation.scale_known_sigma),
 both from the start of motion, the final scale error against the Sim3 scale of SLAM's poses to
 the truth, and the sensors the filter used.
+
+`--real` adds shared sequences with an IMU (../shared/data; default EuRoC MH01, issue 30's real
+visual-inertial target: SE3 ATE <= 3 cm, scale within 2 %), run the same way, their times from
+the first frame.
 
 A second table isolates the filter from SLAM: the same stage and telemetry, fed the truth's
 camera poses in a map of scale 1/1.3 instead of SLAM's (what the filter does with consistent
@@ -47,6 +52,7 @@ from evp.types import Frame
 # both scenarios stand still this long before moving (circle_indoor's `times - 2.0`,
 # wheel_robot_room's `paths.hold(..., 2.0)`)
 STANDING_START_S = 2.0
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 CIRCLE = {"scenario": "circle-indoor", "duration_s": 26.0, "fps": 30.0}  # bench/run_sequences.py's render
 ROBOT_FPS = 20.0  # the robot's forward camera at 0.3 m/s moves 1.5 cm a frame
 
@@ -77,12 +83,11 @@ def _same_render(folder: Path, case: dict) -> bool:
     return description["scenario"] == case["scenario"] and all(options[k] == case[k] for k in ("duration_s", "fps", "seed"))
 
 
-def _record(name: str, folder: Path, out: Path, resume: bool) -> dict:
+def _record(name: str, folder: Path, out: Path, resume: bool, motion_start: float) -> dict:
     if not (resume and (out / "metrics.json").is_file()):
         subprocess.run([sys.executable, "-m", "evp.cli", "run", str(folder), "--out", str(out)], check=True)
     metrics = json.loads((out / "metrics.json").read_text())
     navigation = metrics.get("navigation", {})
-    motion_start = yaml.safe_load((folder / "sim.yaml").read_text())["clock_epoch_s"] + STANDING_START_S
     known = None
     if (out / "navigation.csv").is_file():
         with (out / "navigation.csv").open() as handle:
@@ -143,6 +148,7 @@ def main() -> None:
     parser.add_argument("--circle-seeds", nargs="*", type=int, default=[1, 2, 3])
     parser.add_argument("--robot-seeds", nargs="*", type=int, default=[1, 2])
     parser.add_argument("--robot-duration", type=float, default=30.0)
+    parser.add_argument("--real", nargs="*", default=["euroc_mh_01_easy_moving_360"], help="shared sequences with an IMU (../shared/data)")
     parser.add_argument("--resume", action="store_true", help="read the runs already in --out instead of running them again")
     parser.add_argument("--reuse", nargs="*", default=[], metavar="NAME=FOLDER", help="an existing render for a case, e.g. circle1=/tmp/circ1")
     args = parser.parse_args()
@@ -154,7 +160,7 @@ def main() -> None:
         "navigation_rendered",
         COLUMNS,
         key=["case"],
-        caption="`evp run` with the navigation stage on rendered datasets (640x380); times from the end of the 2 s standing start",
+        caption="`evp run` with the navigation stage on rendered datasets (640x380; times from the end of the 2 s standing start) and on shared sequences with an IMU",
     )
     print(table.header(), flush=True)
     truth_rows = []
@@ -165,8 +171,16 @@ def main() -> None:
         if name not in reuse and not (folder / "sim.yaml").is_file():
             _render(case, folder)
         label = f"{case['scenario']} seed {case['seed']} ({case['duration_s']:g} s, {case['fps']:g} fps)"
-        print(table.add(_record(label, folder, args.out / name, args.resume)), flush=True)
+        motion_start = yaml.safe_load((folder / "sim.yaml").read_text())["clock_epoch_s"] + STANDING_START_S
+        print(table.add(_record(label, folder, args.out / name, args.resume, motion_start)), flush=True)
         truth_rows.append((label, folder))
+    for name in args.real:
+        folder = SHARED / name
+        if not folder.is_dir():
+            print(f"| {name} | missing (../shared/data) |", flush=True)
+            continue
+        label = f"{name} (real; times from the first frame)"
+        print(table.add(_record(label, folder, args.out / name, args.resume, open_dataset(folder).frame_times[0])), flush=True)
     truth = results.table("navigation_rendered_truth_poses", TRUTH_COLUMNS, key=["case"], caption="the same stage and telemetry on the truth's camera poses")
     print(truth.header(), flush=True)
     for label, folder in truth_rows:

@@ -172,7 +172,10 @@ def refine_inertial(
         # the normal equations: well conditioned once whitened; sparse (each interval touches its own
         # velocities, biases and positions): 60 keyframes solve in ~2 ms where a dense solve took 26
         normal = scipy.sparse.csc_matrix(A_t.T @ A_t)
-        factor = scipy.sparse.linalg.splu(normal)
+        try:
+            factor = scipy.sparse.linalg.splu(normal)
+        except RuntimeError:  # SuperLU: "Factor is exactly singular"
+            return replace(start, observable=False, reason="the inertial refinement's system is singular: the keyframes do not determine it")
         x = factor.solve(A_t.T @ (b - A[:, G] @ gravity))
         gravity = gravity + tangent @ x[3 * n : 3 * n + 2]
         scale, errors = float(x[3 * n + 2]), x[3 * n + 3 + bias_rows :]

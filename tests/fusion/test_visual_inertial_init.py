@@ -73,3 +73,17 @@ def test_a_scale_an_accelerometer_bias_could_move_is_not_yet_determined():
     assert trusting.observable and abs(trusting.scale / MAP_SCALE - 1.0) > 0.1  # the bias, read as scale
     careful = initialise_visual_inertial(frames, biased, T_BODY_CAM)
     assert not careful.observable and "scale not yet determined" in careful.reason
+
+
+def test_a_newest_keyframe_between_two_imu_samples_is_solved_at_once():
+    """A 30 Hz camera and a 200 Hz IMU rarely share a timestamp: the newest keyframe a few ms
+    after the newest sample is spanned (that reading held), one a whole period later is not."""
+    trajectory = SinusoidTrajectory()
+    imu = trajectory.imu(imu_times(4.0), GYRO_BIAS)
+    period = imu[1].timestamp - imu[0].timestamp
+    within = keyframes(trajectory, [*np.arange(0.0, 3.9, 0.25), 4.0 + 0.6 * period])
+    result = initialise_visual_inertial(within, imu, T_BODY_CAM, KNOWN_UNBIASED)
+    assert result.observable, result.reason
+    assert abs(result.scale / MAP_SCALE - 1.0) < 0.01
+    beyond = keyframes(trajectory, [*np.arange(0.0, 3.9, 0.25), 4.0 + 1.5 * period])
+    assert "do not span" in initialise_visual_inertial(beyond, imu, T_BODY_CAM, KNOWN_UNBIASED).reason

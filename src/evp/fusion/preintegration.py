@@ -33,8 +33,23 @@ class Preintegrated:
     covariance: np.ndarray | None = None  # (9, 9) of (rotation, velocity, position) change, when noise was given
 
 
+def imu_spans(times: np.ndarray, t0: float, t1: float) -> bool:
+    """Whether IMU samples at ``times`` cover [t0, t1], where an end may fall short of the nearest
+    sample by up to one sample period: :func:`samples_between` then holds that sample's reading,
+    as preintegration holds every reading over its interval. A 30 Hz camera and a 200 Hz IMU
+    rarely share a timestamp, so the newest keyframe is usually a few ms after the newest sample;
+    refusing it left a live 30 fps flight's visual-inertial start waiting (9 of its first 16
+    attempts refused so, and the filter started after 135 s or never) where its 10 fps render,
+    whose frames fall on IMU samples, started at once."""
+    if len(times) < 2:
+        return False
+    period = float(np.median(np.diff(times)))
+    return times[0] <= t0 + period and times[-1] >= t1 - period
+
+
 def samples_between(times: np.ndarray, gyro: np.ndarray, accel: np.ndarray, t0: float, t1: float):
-    """The IMU readings in [t0, t1], with readings interpolated linearly at t0 and t1."""
+    """The IMU readings in [t0, t1], with readings interpolated linearly at t0 and t1 (the nearest
+    reading held outside the samples)."""
     inside = (times > t0) & (times < t1)
     ends = [np.interp(t, times, column) for t in (t0, t1) for column in (*gyro.T, *accel.T)]
     start, end = np.reshape(ends[:6], 6), np.reshape(ends[6:], 6)

@@ -20,7 +20,7 @@ import numpy as np
 
 from evp.config import NavigationSettings
 from evp.fusion.nav_state import NavState, so3_exp, so3_log
-from evp.fusion.preintegration import preintegrate, samples_between
+from evp.fusion.preintegration import imu_spans, preintegrate, samples_between
 from evp.types import ImuSample
 
 GRAVITY_REFINEMENTS = 4  # VINS-Mono iterates its tangent-plane refinement 4 times
@@ -84,7 +84,7 @@ def initialise_visual_inertial(
     if n < s.vi_init_min_keyframes:
         return InertialAlignment(False, f"too few keyframes: {n} < {s.vi_init_min_keyframes}")
     times = np.array([sample.timestamp for sample in imu], float)
-    if len(times) < 2 or times[0] > keyframes[0][0] or times[-1] < keyframes[-1][0]:
+    if not imu_spans(times, keyframes[0][0], keyframes[-1][0]):
         return InertialAlignment(False, "the IMU samples do not span the keyframes")
     gaps = np.diff(times)
     if np.any(gaps <= 0) or gaps.max() > s.max_imu_gap_s:

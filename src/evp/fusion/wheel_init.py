@@ -23,6 +23,7 @@ import numpy as np
 
 from evp.config import NavigationSettings
 from evp.fusion.nav_state import so3_exp, so3_log
+from evp.fusion.preintegration import imu_spans
 from evp.fusion.visual_inertial_init import InertialAlignment
 from evp.types import ImuSample, WheelOdometry
 
@@ -69,7 +70,7 @@ def initialise_from_wheels(
     if len(wheel_t) < 2 or wheel_t[0] > t0 or wheel_t[-1] < t1:
         return InertialAlignment(False, "the wheel records do not span the keyframes")
     imu_t = np.array([sample.timestamp for sample in imu], float)
-    if len(imu_t) < 2 or imu_t[0] > t0 or imu_t[-1] < t1:
+    if not imu_spans(imu_t, t0, t1):
         return InertialAlignment(False, "the IMU samples do not span the keyframes")
     R_bc, t_bc = T_body_cam[:3, :3], T_body_cam[:3, 3]
 

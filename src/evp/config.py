@@ -508,6 +508,12 @@ class StationSettings(_Section):
         True,
         description="each session's estimator (SLAM) in a process of its own beside the one that answers the frames: the answers never wait for SLAM's Python (measured with py-spy: the answering thread waited for the interpreter more than it worked); false: one process per session, as offline",
     )
+    vision_nice: int = Field(
+        0,
+        ge=0,
+        le=19,
+        description="how much nicer (Linux nice) the threads that run each session's estimator are than the station's (in the vision process, or the actor on a cluster's worker): when the cores are all busy, the answers and the link run first and SLAM takes what is left. Measured on 2 cores (docs/decisions.md): 5 halves the answers' p95 with two 30 fps flights, but SLAM then starves and a vehicle's filter may never start; one flight meets its latency target at 0",
+    )
     cluster: str = Field(
         "",
         description="a Dask scheduler's address (tcp://HOST:8786): each session's estimator runs there, one long-lived actor per session, when the station's own cores are not enough; the answers, the navigation filter and the recording stay on the station",

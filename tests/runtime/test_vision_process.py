@@ -16,7 +16,7 @@ from evp.errors import DataError, EvpError
 from evp.estimator import Estimator
 from evp.pipeline import Pipeline, RunResult
 from evp.runtime.estimator_process import EstimatorProcess, ProcessEvents
-from evp.runtime.vision_process import RemoteEstimator, VisionLost, serve_estimator
+from evp.runtime.vision_process import EstimatorServer, RemoteEstimator, ThreadPriority, VisionLost, serve_estimator
 from evp.types import Frame, PoseEstimate, TrackingState
 
 
@@ -59,7 +59,7 @@ def _frames(count: int) -> list[Frame]:
 def test_the_remote_estimator_is_the_estimator_seen_through_a_pipe():
     ours, theirs = multiprocessing.Pipe()
     scripted = _Observing()
-    server = threading.Thread(target=serve_estimator, args=(theirs, scripted))
+    server = threading.Thread(target=serve_estimator, args=(theirs, EstimatorServer(scripted)))
     server.start()
     remote = RemoteEstimator(ours)
     result = RunResult(remote)
@@ -78,7 +78,7 @@ def test_the_remote_estimator_is_the_estimator_seen_through_a_pipe():
 def test_telemetry_is_not_sent_to_an_estimator_that_uses_none():
     ours, theirs = multiprocessing.Pipe()
     scripted = _Scripted()
-    server = threading.Thread(target=serve_estimator, args=(theirs, scripted))
+    server = threading.Thread(target=serve_estimator, args=(theirs, EstimatorServer(scripted)))
     server.start()
     remote = RemoteEstimator(ours)
     remote.observe("imu 0")
@@ -146,3 +146,23 @@ def test_a_pair_asked_to_close_is_not_an_exit():
 
     asyncio.run(scenario())
     assert exits == []
+
+
+def test_the_estimator_threads_run_below_the_answering_ones_and_are_lowered_once():
+    base = os.getpriority(os.PRIO_PROCESS, 0)
+    priority = ThreadPriority(3)
+    seen: dict[str, int] = {}
+
+    def estimator_thread() -> None:
+        priority.lower()
+        priority.lower()  # once: not 6 below
+        seen["lowered"] = os.getpriority(os.PRIO_PROCESS, 0)
+        child = threading.Thread(target=lambda: seen.setdefault("child", os.getpriority(os.PRIO_PROCESS, 0)))
+        child.start()
+        child.join()
+
+    thread = threading.Thread(target=estimator_thread)
+    thread.start()
+    thread.join()
+    assert seen == {"lowered": min(19, base + 3), "child": min(19, base + 3)}, "a thread the estimator starts inherits it"
+    assert os.getpriority(os.PRIO_PROCESS, 0) == base, "the answering thread keeps its priority"

@@ -12,6 +12,7 @@ import asyncio
 import contextlib
 import json
 import logging
+import os
 import resource
 import socket
 import ssl
@@ -74,17 +75,21 @@ def test_the_same_log_message_is_held_back_after_a_burst_and_counted():
 PROCESSES_PER_ESTIMATOR = 2  # the estimator process and its vision process (station.vision_process)
 
 
-def _estimator_processes(pid: int) -> int:
-    """The station's estimator processes and their vision processes (multiprocessing spawn
-    children; not its resource tracker)."""
-    count = 0
+def _estimator_niceness(pid: int) -> list[int]:
+    """The niceness of each of the station's estimator processes and their vision processes
+    (multiprocessing spawn children; not its resource tracker)."""
+    niceness = []
     for stat in Path("/proc").glob("[0-9]*/stat"):
         with contextlib.suppress(OSError):
-            fields = stat.read_text().rpartition(")")[2].split()
+            fields = stat.read_text().rpartition(")")[2].split()  # state, ppid, ... nice is the 17th
             cmdline = (stat.parent / "cmdline").read_bytes()
             if int(fields[1]) == pid and b"spawn_main" in cmdline:
-                count += 1
-    return count
+                niceness.append(int(fields[16]))
+    return niceness
+
+
+def _estimator_processes(pid: int) -> int:
+    return len(_estimator_niceness(pid))
 
 
 def test_failed_attempts_block_a_client_until_the_oldest_leaves_the_window_and_memory_stays_bounded():
@@ -103,6 +108,26 @@ def test_failed_attempts_block_a_client_until_the_oldest_leaves_the_window_and_m
     for k in range(1000):
         throttle.failed(f"client-{k}")
     assert len(throttle._failures) == 100 and "client-999" in throttle._failures
+
+
+def test_vision_yields_the_cpus_to_the_process_that_answers(tmp_path, station_data, frames):
+    camera, _ = frames
+    with running_station(station_data, "--config", _settings(tmp_path, vision_nice=7)) as station:
+
+        station_nice = os.getpriority(os.PRIO_PROCESS, station.process.pid)
+        expected = [station_nice, min(19, station_nice + 7)]
+
+        async def scenario() -> list[int]:
+            link, _ = await _open_session(station.url, camera)
+            for _ in range(200):  # the vision process lowers its priority as it starts
+                niceness = sorted(_estimator_niceness(station.process.pid))
+                if niceness == expected:
+                    break
+                await asyncio.sleep(0.05)
+            await link.close()
+            return niceness
+
+        assert asyncio.run(scenario()) == expected
 
 
 def test_configs_replace_the_estimator_and_sessions_bodies_and_disk_are_capped(tmp_path, station_data, frames):

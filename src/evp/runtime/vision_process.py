@@ -21,6 +21,8 @@ server that is gone is :class:`VisionLost`.
 
 from __future__ import annotations
 
+import os
+import threading
 from typing import Any
 
 from evp.errors import DataError, EvpError
@@ -37,12 +39,43 @@ class VisionLost(RuntimeError):
     in the estimator)."""
 
 
-class EstimatorServer:
-    """An estimator's calls as plain data: what each side of a link needs, and nothing else."""
+class ThreadPriority:
+    """A lower scheduling priority for the threads that run an estimator, so that where they
+    share CPUs with the processes that answer the frames (a station's cores, a local cluster),
+    the answers run first and vision takes what is left: vision skips frames to keep up, an
+    answer that comes late is lost to the vehicle (measured: two 30 fps flights on two cores,
+    86 % answered at p95 195 ms with vision at the same priority, 100 % at 29 ms five steps below).
 
-    def __init__(self, estimator: Estimator):
+    Linux gives each thread its own niceness and a new thread its creator's, so :meth:`lower`
+    is called by every thread that runs the estimator's calls (a cluster's actor runs them on a
+    thread of its own), and before the estimator starts its threads. Raising a priority back
+    needs privileges a station rarely has: a thread is only ever lowered, once."""
+
+    def __init__(self, niceness: int):
+        self.value = min(19, os.getpriority(os.PRIO_PROCESS, 0) + niceness)  # below the creating thread's
+        self._lowered: set[int] = set()
+
+    def lower(self) -> None:
+        """The calling thread to this priority (once; never raised)."""
+        thread = threading.get_native_id()
+        if thread not in self._lowered:
+            self._lowered.add(thread)
+            if os.getpriority(os.PRIO_PROCESS, thread) < self.value:
+                os.setpriority(os.PRIO_PROCESS, thread, self.value)
+
+
+class EstimatorServer:
+    """An estimator's calls as plain data: what each side of a link needs, and nothing else;
+    each call's thread runs at ``priority`` when one is given."""
+
+    def __init__(self, estimator: Estimator, priority: ThreadPriority | None = None):
         self.estimator = estimator
+        self.priority = priority
         self._closures_told = 0
+
+    def _lower(self) -> None:
+        if self.priority is not None:
+            self.priority.lower()
 
     def info(self) -> dict:
         """Whether the estimator starts in a saved map, and whether it uses telemetry (an
@@ -52,6 +85,7 @@ class EstimatorServer:
     def feed(self, frame: Frame) -> tuple[str, Any]:
         """``("estimate", (estimate, reset counter, loop closures since the last answer))``, or
         ``("rejected", why)`` for a frame the estimator refused."""
+        self._lower()
         try:
             estimate = self.estimator.feed(frame)
         except EvpError as exc:
@@ -61,9 +95,11 @@ class EstimatorServer:
         return "estimate", (estimate, int(getattr(self.estimator, "reset_counter", 0)), new)
 
     def observe(self, record: Any) -> None:
+        self._lower()
         self.estimator.observe(record)
 
     def settle(self) -> None:
+        self._lower()
         self.estimator.settle()
 
     def finish(self) -> None:
@@ -73,11 +109,10 @@ class EstimatorServer:
         self.estimator.close()
 
 
-def serve_estimator(connection, estimator: Estimator) -> None:
+def serve_estimator(connection, server: EstimatorServer) -> None:
     """The vision process's loop: ``("feed", frame)``, ``("observe", record)`` and ``("finish",
     None)`` from the answering process, until it finishes or goes away; says ``("ready", info)``
     first."""
-    server = EstimatorServer(estimator)
     connection.send(("ready", server.info()))
     try:
         while True:

@@ -20,7 +20,7 @@ import numpy as np
 from evp.geometry.transforms import poses_from_xyz_quat, quat_xyzw_from_matrices
 from evp.pipeline import Pipeline, Sink
 from evp.runtime.live_pipeline import LiveAnswer, LivePipeline, estimator_jumps
-from evp.runtime.vision_process import ClusterEstimator, EstimatorServer, RemoteEstimator, serve_estimator
+from evp.runtime.vision_process import ClusterEstimator, EstimatorServer, RemoteEstimator, ThreadPriority, serve_estimator
 from evp.station.protocol import Pose, ProtocolError, image_pixels
 from evp.types import CameraModel, Frame, PoseEstimate
 
@@ -154,13 +154,16 @@ class SessionEstimatorServer(EstimatorServer):
     def __init__(self, camera: CameraModel, settings_json: str, T_body_cam: list[float] | None = None):
         from evp.config import Settings
 
-        super().__init__(make_session_estimator(camera, Settings.model_validate_json(settings_json), T_body_cam))
+        settings = Settings.model_validate_json(settings_json)
+        priority = ThreadPriority(settings.station.vision_nice)
+        priority.lower()  # before the estimator starts its own threads (local mapping): they inherit it
+        super().__init__(make_session_estimator(camera, settings, T_body_cam), priority)
 
 
 def vision_main(connection, camera: CameraModel, settings_json: str, T_body_cam: list[float] | None = None) -> None:
     """The vision process (``EstimatorProcess``'s partner, ``station.vision_process``): the
     session's estimator, fed by the estimator process's :class:`RemoteEstimator`."""
-    serve_estimator(connection, SessionEstimatorServer(camera, settings_json, T_body_cam).estimator)
+    serve_estimator(connection, SessionEstimatorServer(camera, settings_json, T_body_cam))
 
 
 def worker_main(connection, camera: CameraModel, settings_json: str, T_body_cam: list[float] | None = None, answers: str = "at_once", vision=None) -> None:

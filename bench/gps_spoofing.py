@@ -40,6 +40,7 @@ from results import Results
 from evp.config import Settings
 from evp.estimator import Estimator
 from evp.eval.evaluate import evaluate
+from evp.experiments.seed002_flights import AERIAL_NAVIGATION, CLIMB_M_S
 from evp.fusion.navigation_stage import NavigationStage
 from evp.io.navigation_outputs import georeferenced_trajectory, truth_in_enu
 from evp.io.registry import open_dataset
@@ -51,13 +52,7 @@ from evp.sim.scenarios import SimOptions, drone_flight
 from evp.types import Frame, PoseEstimate
 
 OUTAGE_S = 60.0
-# Settings for a downward camera at 60 m, measured on the 120 s render: SLAM's positions there
-# scatter ~0.3 m (its Sim3 ATE 0.28 m), not the 2 cm of the default (EuRoC at 2-3 m); with
-# keyframes 0.25 s apart the initialisation's accelerations from second differences are noise
-# and its scale comes out 5x low (0.53 and 0.61 m per unit against 3.05); 1 s apart: 20 % low,
-# which the filter then corrects.
-FLIGHT_NAVIGATION = {"visual_position_sigma_m": 0.3, "vi_init_keyframe_interval_s": 1.0}
-CLIMB_M_S = 3.0  # the drone-flight scenario's climb and descent rate
+FLIGHT_NAVIGATION = AERIAL_NAVIGATION  # the filter's settings for a downward camera tens of metres up
 COLUMNS = [
     ("case", "{case}"),
     ("flight (s)", "{duration_s:.0f}"),

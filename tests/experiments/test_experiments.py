@@ -1,6 +1,10 @@
-"""``evp experiment``: the registry, and seed 001's convergence study's headline cases."""
+"""``evp experiment``: the registry, seed 001's convergence study's headline cases, and seed
+002's scoring of the fused track."""
 
 from __future__ import annotations
+
+import numpy as np
+import pytest
 
 from evp.experiments.seed001_convergence import CASES, run_case
 from tests.cli.conftest import evp
@@ -43,3 +47,25 @@ def test_on_the_real_car_the_wheels_and_gyro_drift_least():
     end = {name: _errors(truth, *paths[name])[-1] for name in METHODS}
     assert end[METHODS[0]] > 30.0 and end[METHODS[1]] < 0.5 * end[METHODS[0]] and end[METHODS[2]] > end[METHODS[1]]
     assert all(times[-1] - times[0] > 59.0 for times, _ in paths.values())
+
+
+def test_seed002_scores_the_fused_track_after_the_alignment_phase_above_15_m_as_the_paper():
+    from evp.experiments.seed002_flights import _fused_scores
+    from evp.fusion.geodesy import EnuFrame
+    from evp.fusion.gps_input import GpsTrack
+    from evp.types import Trajectory
+
+    times = np.arange(0.0, 100.0, 0.5)
+    up = np.interp(times, [0, 20, 80, 100], [0, 60, 60, 0])  # climb, cruise, descent
+    truth_xyz = np.column_stack([2.0 * times, np.zeros_like(times), up])
+    gps = GpsTrack(EnuFrame(0.0, 0.0, 0.0), times, truth_xyz, np.full(len(times), 1.5))
+    quats = np.tile([0.0, 0.0, 0.0, 1.0], (len(times), 1))
+    truth = Trajectory(truth_xyz, quats, times, "truth")
+    error = np.where(up > 15.0, 1.0, 40.0)  # 1 m east above 15 m, 40 m below: never scored
+    fused = Trajectory(truth_xyz + np.column_stack([error, np.zeros((len(times), 2))]), quats, times, "fused")
+    scores = _fused_scores(fused, gps, 30.0, truth, 60.0)
+    after_and_high = (times > 30.0) & (up > 15.0)
+    assert scores["whole"]["count"] == after_and_high.sum() and scores["whole"]["mean"] == pytest.approx(1.0)
+    assert scores["near_target"]["count"] == ((times > 30.0) & (np.abs(up - 60.0) < 2.0)).sum()
+    assert scores["vs_truth_mean_m"] == pytest.approx(1.0)
+    assert _fused_scores(Trajectory(truth_xyz[:1], quats[:1], times[:1], "fused"), gps, 30.0, truth, 60.0)["whole"] is None

@@ -14,9 +14,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.patches import Circle  # noqa: E402
 
+from evp.experiments.seed002_flights import MODES, SCORED_ABOVE_M  # noqa: E402
 from evp.fusion.flight import NEAR_TARGET_M  # noqa: E402
-
-MODES = ("2d+baro", "3d+baro")
 
 
 def _first(records: dict, preferred: list[str]) -> str | None:
@@ -46,10 +45,11 @@ def altitude_figure(flight: str, record: dict, out: Path) -> str:
 def histogram_figure(flight: str, record: dict, out: Path) -> str:
     fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=False)
     target = record["target_altitude_m"] + 0.3
-    for ax, part in zip(axes, ("whole flight", f"|z - target| < {NEAR_TARGET_M:g} m")):
+    whole = f"whole flight (above {SCORED_ABOVE_M:g} m)"
+    for ax, part in zip(axes, (whole, f"|z - target| < {NEAR_TARGET_M:g} m")):
         for mode in MODES:
             errors, heights = (np.asarray(v) for v in record[mode]["errors"])
-            chosen = errors if part == "whole flight" else errors[np.abs(heights - target) < NEAR_TARGET_M]
+            chosen = errors[heights > SCORED_ABOVE_M] if part == whole else errors[np.abs(heights - target) < NEAR_TARGET_M]
             ax.hist(chosen, bins=30, alpha=0.55, label=mode)
         ax.set(xlabel="horizontal error against GPS (m)", ylabel="fixes", title=f"Flight {flight}, {part}")
         ax.grid(alpha=0.3)

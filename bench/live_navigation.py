@@ -2,11 +2,11 @@
 barometer streamed in real time to `evp serve` over loopback, GPS spoofed from mid-flight, and the
 bundled sample streamed in real time.
 
-Usage: python bench/live_navigation.py [--duration 120] [--spoof-start 60] [--dataset DIR] [--cases fused plain sample] [--keep DIR]
+Usage: python bench/live_navigation.py [--duration 120] [--spoof-start 60] [--dataset DIR] [--cases fused plain two sample] [--keep DIR]
 
-The issue's flight is 300 s with spoofing from 150 s (`--duration 300 --spoof-start 150`: ~15 min
-to render at 30 fps on two free cores, then 10 min of streaming); the default is the 120 s flight
-of docs/navigation.md with spoofing from 60 s.
+The issue's flight is 300 s with spoofing from 150 s (`--duration 300 --spoof-start 150`: ~1.5 min
+to render at 30 fps on two free cores, then 5 min of streaming per case); the default is the 120 s
+flight of docs/navigation.md with spoofing from 60 s.
 
 Renders `evp sim drone-flight` at 30 fps, 640x380 (60 m, 6 m/s lawnmower, seed 0) with GPS pulled
 off at 5 m/s from `--spoof-start` (or reads `--dataset`, a render of the same kind), then for each
@@ -19,6 +19,8 @@ bench/gps_spoofing.py) and runs `evp stream --realtime` of the flight, a phone's
   spoofing alarm's delay after the spoof's start, and the horizontal error of the answered
   georeferenced positions against the truth (no alignment: ENU at the take-off point) over the
   spoofed part (from the spoof's start to the end of the cruise);
+- `two`: two vehicles streaming the flight at once to one station (two sessions, two estimators
+  on the same cores), the `fused` figures of the vehicle that did worse on each;
 - `without fusion`: the same stream to a station with `navigation.enabled: false` (SLAM's poses
   answered at once, as before the filter); the `fused` row gives its p95 as a ratio to this one.
 
@@ -82,27 +84,31 @@ def _render(folder: Path, duration: float, spoof_start: float) -> Path:
     return folder
 
 
-def _stream(work: Path, name: str, source: Path, settings: dict) -> tuple[dict, list[dict], list[dict]]:
-    """`evp serve` with ``settings``, `evp stream --realtime` of ``source``: the stream's summary,
-    every answer, and the session's events."""
+def _stream(work: Path, name: str, source: Path, settings: dict, vehicles: int = 1) -> list[tuple[dict, list[dict], list[dict]]]:
+    """`evp serve` with ``settings``, ``vehicles`` runs of `evp stream --realtime` of ``source``
+    at once: per vehicle, the stream's summary, every answer, and the session's events."""
     config = work / f"{name}.yaml"
     config.write_text(yaml.safe_dump(settings))
-    out = work / f"{name}-stream"
+    outs = [work / f"{name}-stream{'' if vehicles == 1 else k}" for k in range(vehicles)]
     data = work / f"{name}-station"
     with running_station(data, "--config", str(config)) as station:
         command = [sys.executable, "-m", "evp.cli", "stream", str(source), "--url", station.url, "--realtime", "--quiet", "--encoding", "jpeg"]
         command += ["--cafile", str(data / "tls" / "cert.pem")]
-        result = subprocess.run([*command, "--out", str(out)], capture_output=True, text=True, timeout=3600)
-        if result.returncode != 0:
-            raise SystemExit(f"evp stream failed: {result.stderr[-2000:]}")
-    summary = json.loads((out / "summary.json").read_text())
-    answers = [json.loads(line) for line in (out / "answers.jsonl").read_text().splitlines()]
+        streams = [subprocess.Popen([*command, "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for out in outs]
+        for stream in streams:
+            _, stderr = stream.communicate(timeout=3600)
+            if stream.returncode != 0:
+                raise SystemExit(f"evp stream failed: {stderr[-2000:]}")
+    runs = []
     store = SessionStore(f"sqlite:///{data / 'evp.sqlite'}")
     try:
-        events = store.rows("events", summary["session_id"])
+        for out in outs:
+            summary = json.loads((out / "summary.json").read_text())
+            answers = [json.loads(line) for line in (out / "answers.jsonl").read_text().splitlines()]
+            runs.append((summary, answers, store.rows("events", summary["session_id"])))
     finally:
         store.close()
-    return summary, answers, events
+    return runs
 
 
 def _latency_figures(summary: dict, answers: list[dict]) -> dict:
@@ -116,6 +122,16 @@ def _latency_figures(summary: dict, answers: list[dict]) -> dict:
         "visual_age_ms_p95": float(np.percentile(ages, 95)) if len(ages) else None,
         "load": os.getloadavg()[0],
     }
+
+
+def _worst_vehicle(figures: list[dict]) -> dict:
+    """Several vehicles' figures as one row: each figure from the vehicle that did worst on it."""
+    worst: dict = {}
+    for key in figures[0]:
+        values = [f[key] for f in figures if f.get(key) is not None]
+        if values:
+            worst[key] = min(values) if key == "answered_percent" else max(values)
+    return worst
 
 
 def _navigation_figures(dataset, answers: list[dict], events: list[dict], spoof_start: float) -> dict:
@@ -145,7 +161,9 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=120.0)
     parser.add_argument("--spoof-start", type=float, default=60.0)
     parser.add_argument("--dataset", type=Path, help="a drone-flight render at 30 fps to use instead of rendering one")
-    parser.add_argument("--cases", nargs="+", default=["fused", "plain", "sample"], help="which streams to run (fused needs plain's p95 for its ratio)")
+    parser.add_argument(
+        "--cases", nargs="+", default=["fused", "plain", "sample"], choices=["fused", "plain", "two", "sample"], help="which streams to run (fused needs plain's p95 for its ratio; two: two vehicles streaming the flight at once)"
+    )
     parser.add_argument("--keep", type=Path, help="keep the stations' data and the streams' answers here")
     args = parser.parse_args()
     command = f"python bench/live_navigation.py --duration {args.duration:g} --spoof-start {args.spoof_start:g}"
@@ -160,22 +178,25 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = args.keep or Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
-        if {"fused", "plain"} & set(args.cases):
+        if {"fused", "plain", "two"} & set(args.cases):
             folder = args.dataset or _render(work / "flight", args.duration, args.spoof_start)
             dataset = open_dataset(folder)
             flight = f"rendered drone flight {args.duration:g} s, GPS spoofed from {args.spoof_start:g} s"
             baseline = None
             if "plain" in args.cases:
-                summary, answers, _ = _stream(work, "plain", folder, {"estimator": "slam", "navigation": {"enabled": False}})
+                [(summary, answers, _)] = _stream(work, "plain", folder, {"estimator": "slam", "navigation": {"enabled": False}})
                 baseline = _latency_figures(summary, answers)
                 print(table.add({"stream": flight, "case": "without fusion", **baseline}), flush=True)
-            if "fused" in args.cases:
-                summary, answers, events = _stream(work, "fused", folder, {"estimator": "slam", "navigation": LIVE_FLIGHT_NAVIGATION})
-                fused = _latency_figures(summary, answers) | _navigation_figures(dataset, answers, events, args.spoof_start)
+            for case, vehicles in (("fused", 1), ("two", 2)):
+                if case not in args.cases:
+                    continue
+                runs = _stream(work, case, folder, {"estimator": "slam", "navigation": LIVE_FLIGHT_NAVIGATION}, vehicles)
+                fused = _worst_vehicle([_latency_figures(s, a) | _navigation_figures(dataset, a, e, args.spoof_start) for s, a, e in runs])
                 fused["p95_ratio"] = None if baseline is None else fused["latency_ms_p95"] / baseline["latency_ms_p95"]
-                print(table.add({"stream": flight, "case": "fused", **fused}), flush=True)
+                name = "fused" if vehicles == 1 else f"fused, {vehicles} vehicles at once (the worse vehicle's figure in each column)"
+                print(table.add({"stream": flight, "case": name, **fused}), flush=True)
         if "sample" in args.cases:
-            summary, answers, _ = _stream(work, "sample", SAMPLE, {})
+            [(summary, answers, _)] = _stream(work, "sample", SAMPLE, {})
             print(table.add({"stream": "bundled sample (davis_slider_depth, no IMU)", "case": "SLAM only", **_latency_figures(summary, answers)}), flush=True)
 
 

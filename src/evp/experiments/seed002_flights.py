@@ -25,9 +25,8 @@ from evp.experiments.batched import Report, Row, figure, markdown_table
 from evp.fusion.flight import NEAR_TARGET_M, process_flight
 from evp.fusion.gps_alignment import alignment_window, resample
 from evp.fusion.gps_input import clean_gps
-from evp.io.navigation_outputs import georeferenced_trajectory
+from evp.io.navigation_outputs import georeferenced_trajectory, truth_in_enu
 from evp.io.registry import open_dataset
-from evp.io.trajectory import read_trajectory
 from evp.pipeline import run_dataset
 from evp.run_setup import camera_for, make_estimator, navigation_stage, resolve_settings
 from evp.sim.generate import generate
@@ -148,10 +147,11 @@ def fly(flight: str, duration_s: float, altitude_m: float, speed_m_s: float, fps
         data = Path(scratch) / "data"
         generate("drone-flight", options, data, workers=1)
         dataset = open_dataset(data)
-        truth = read_trajectory(data / "groundtruth_cam0_tum.txt")
+        gps_track = clean_gps(dataset.gps)
+        truth = truth_in_enu(dataset, gps_track.frame)  # in the GPS's frame: ENU at its first fix, as the aligned tracks
         settings = with_overrides(resolve_settings(Settings(), dataset), {f"navigation.{k}": v for k, v in AERIAL_NAVIGATION.items()})
         phase = AlignmentSettings(target_altitude_m=altitude_m + 0.3, window_s=window_s)
-        _, phase_end, _ = alignment_window(clean_gps(dataset.gps), phase, None)
+        _, phase_end, _ = alignment_window(gps_track, phase, None)
         denied = replace(dataset, gps=[fix for fix in dataset.gps if fix.timestamp <= phase_end])
         estimator = make_estimator(camera_for(denied, settings), settings, denied)
         stage = navigation_stage(denied, settings, estimator)

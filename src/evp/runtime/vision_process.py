@@ -40,11 +40,12 @@ class VisionLost(RuntimeError):
 
 
 class ThreadPriority:
-    """A lower scheduling priority for the threads that run an estimator, so that where they
-    share CPUs with the processes that answer the frames (a station's cores, a local cluster),
-    the answers run first and vision takes what is left: vision skips frames to keep up, an
-    answer that comes late is lost to the vehicle (measured: two 30 fps flights on two cores,
-    86 % answered at p95 195 ms with vision at the same priority, 100 % at 29 ms five steps below).
+    """A lower scheduling priority for the threads that run an estimator (``station.vision_nice``),
+    so that where they share CPUs with the processes that answer the frames (a station's cores, a
+    local cluster), the answers run first and vision takes what is left. The cost is SLAM's share:
+    with two 30 fps flights on two cores, five steps below halved the answers' p95 but one
+    vehicle's filter never started (docs/decisions.md), so stations use it only when other work
+    oversubscribes their cores.
 
     Linux gives each thread its own niceness and a new thread its creator's, so :meth:`lower`
     is called by every thread that runs the estimator's calls (a cluster's actor runs them on a

@@ -155,8 +155,9 @@ class SessionEstimatorServer(EstimatorServer):
         from evp.config import Settings
 
         settings = Settings.model_validate_json(settings_json)
-        priority = ThreadPriority(settings.station.vision_nice)
-        priority.lower()  # before the estimator starts its own threads (local mapping): they inherit it
+        priority = ThreadPriority(settings.station.vision_nice) if settings.station.vision_nice else None
+        if priority is not None:
+            priority.lower()  # before the estimator starts its own threads (local mapping): they inherit it
         super().__init__(make_session_estimator(camera, settings, T_body_cam), priority)
 
 

@@ -52,7 +52,6 @@ from evp.sim.scenarios import SimOptions, drone_flight
 from evp.types import Frame, PoseEstimate
 
 OUTAGE_S = 60.0
-FLIGHT_NAVIGATION = AERIAL_NAVIGATION  # the filter's settings for a downward camera tens of metres up
 COLUMNS = [
     ("case", "{case}"),
     ("flight (s)", "{duration_s:.0f}"),
@@ -167,7 +166,7 @@ def main() -> None:
         dataset = open_dataset(args.dataset or _render(args, Path(tmp) / "flight"))
         settings = resolve_settings(Settings(estimator="slam"), dataset)
         settings.navigation = Settings.model_validate(
-            {"navigation": {**settings.navigation.model_dump(), **FLIGHT_NAVIGATION, **overrides}}
+            {"navigation": {**settings.navigation.model_dump(), **AERIAL_NAVIGATION, **overrides}}
         ).navigation
         if args.answers:
             with args.answers.open("rb") as handle:

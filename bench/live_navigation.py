@@ -43,9 +43,9 @@ import numpy as np
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the station runner the tests use
-from gps_spoofing import CLIMB_M_S, FLIGHT_NAVIGATION  # noqa: E402
 from results import Results  # noqa: E402
 
+from evp.experiments.seed002_flights import AERIAL_NAVIGATION, CLIMB_M_S  # noqa: E402
 from evp.fusion.geodesy import EnuFrame  # noqa: E402
 from evp.io.navigation_outputs import truth_in_enu  # noqa: E402
 from evp.io.registry import open_dataset  # noqa: E402
@@ -57,7 +57,7 @@ from tests.station.conftest import running_station  # noqa: E402
 # SLAM's pose comes live: a visual update older than the newest IMU sample by more than
 # history_s is refused as too old, and the filter then runs on the IMU alone (measured on the
 # loaded 2-core machine: the last visual correction 0.2-1 s old, p95).
-LIVE_FLIGHT_NAVIGATION = {**FLIGHT_NAVIGATION, "history_s": 2.5}
+LIVE_FLIGHT_NAVIGATION = {**AERIAL_NAVIGATION, "history_s": 2.5}
 
 COLUMNS = [
     ("stream", "{stream}"),

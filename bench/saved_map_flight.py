@@ -40,11 +40,11 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from gps_spoofing import CLIMB_M_S, FLIGHT_NAVIGATION  # noqa: E402
 from results import Results  # noqa: E402
 
 from evp.config import Settings  # noqa: E402
 from evp.eval.evaluate import evaluate  # noqa: E402
+from evp.experiments.seed002_flights import AERIAL_NAVIGATION, CLIMB_M_S  # noqa: E402
 from evp.io.map_files import read_map_georeference  # noqa: E402
 from evp.io.navigation_outputs import georeferenced_trajectory, truth_in_enu  # noqa: E402
 from evp.io.registry import open_dataset  # noqa: E402
@@ -82,7 +82,7 @@ def _render(folder: Path, options: SimOptions) -> Path:
 
 def _settings(dataset, saved_map: Path | None = None) -> Settings:
     settings = resolve_settings(Settings(estimator="slam"), dataset)
-    settings.navigation = settings.navigation.model_copy(update=FLIGHT_NAVIGATION)
+    settings.navigation = settings.navigation.model_copy(update=AERIAL_NAVIGATION)
     if saved_map is not None:
         settings.slam = settings.slam.model_copy(update={"map": str(saved_map)})
     return settings

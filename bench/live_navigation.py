@@ -2,7 +2,7 @@
 barometer streamed in real time to `evp serve` over loopback, GPS spoofed from mid-flight, and the
 bundled sample streamed in real time.
 
-Usage: python bench/live_navigation.py [--duration 120] [--spoof-start 60] [--dataset DIR] [--cases fused plain two sample] [--keep DIR]
+Usage: python bench/live_navigation.py [--duration 120] [--spoof-start 60] [--dataset DIR] [--cases fused plain two sample] [--keep DIR] [--mapping inline|thread]
 
 The issue's flight is 300 s with spoofing from 150 s (`--duration 300 --spoof-start 150`: ~1.5 min
 to render at 30 fps on two free cores, then 5 min of streaming per case); the default is the 120 s
@@ -165,8 +165,11 @@ def main() -> None:
         "--cases", nargs="+", default=["fused", "plain", "sample"], choices=["fused", "plain", "two", "sample"], help="which streams to run (fused needs plain's p95 for its ratio; two: two vehicles streaming the flight at once)"
     )
     parser.add_argument("--keep", type=Path, help="keep the stations' data and the streams' answers here")
+    parser.add_argument("--mapping", choices=["inline", "thread"], default="inline", help="the stations' slam.mapping (inline: the default)")
     args = parser.parse_args()
-    command = f"python bench/live_navigation.py --duration {args.duration:g} --spoof-start {args.spoof_start:g}"
+    command = f"python bench/live_navigation.py --duration {args.duration:g} --spoof-start {args.spoof_start:g}" + (f" --mapping {args.mapping}" if args.mapping != "inline" else "")
+    slam = {"mapping": args.mapping}
+    mapping = "" if args.mapping == "inline" else ", mapping in a thread"
     print(f"command: {command}  (load average {os.getloadavg()[0]:.1f})")
     table = Results("live_navigation", command).table(
         "streams",
@@ -184,16 +187,16 @@ def main() -> None:
             flight = f"rendered drone flight {args.duration:g} s, GPS spoofed from {args.spoof_start:g} s"
             baseline = None
             if "plain" in args.cases:
-                [(summary, answers, _)] = _stream(work, "plain", folder, {"estimator": "slam", "navigation": {"enabled": False}})
+                [(summary, answers, _)] = _stream(work, "plain", folder, {"estimator": "slam", "slam": slam, "navigation": {"enabled": False}})
                 baseline = _latency_figures(summary, answers)
-                print(table.add({"stream": flight, "case": "without fusion", **baseline}), flush=True)
+                print(table.add({"stream": flight, "case": "without fusion" + mapping, **baseline}), flush=True)
             for case, vehicles in (("fused", 1), ("two", 2)):
                 if case not in args.cases:
                     continue
-                runs = _stream(work, case, folder, {"estimator": "slam", "navigation": LIVE_FLIGHT_NAVIGATION}, vehicles)
+                runs = _stream(work, case, folder, {"estimator": "slam", "slam": slam, "navigation": LIVE_FLIGHT_NAVIGATION}, vehicles)
                 fused = _worst_vehicle([_latency_figures(s, a) | _navigation_figures(dataset, a, e, args.spoof_start) for s, a, e in runs])
                 fused["p95_ratio"] = None if baseline is None else fused["latency_ms_p95"] / baseline["latency_ms_p95"]
-                name = "fused" if vehicles == 1 else f"fused, {vehicles} vehicles at once (the worse vehicle's figure in each column)"
+                name = ("fused" if vehicles == 1 else f"fused, {vehicles} vehicles at once (the worse vehicle's figure in each column)") + mapping
                 print(table.add({"stream": flight, "case": name, **fused}), flush=True)
         if "sample" in args.cases:
             [(summary, answers, _)] = _stream(work, "sample", SAMPLE, {})

@@ -1,11 +1,14 @@
 """`evp run` on rendered motion classes the engine was not tuned on: the `road-drive` scenario (a
-KITTI's 1241x376 car camera 1.5 m up a curving town road at 20 m/s) at 10 and 30 Hz, three seeds each.
+KITTI's 1241x376 car camera 1.5 m up a curving town road at 20 m/s) at 10 and 30 Hz, three seeds each,
+and with `--scenario handheld-pan` the rotation-dominant class (a phone 0.35 m from the axis of a
+person turning on the spot, up to 50 degrees/s).
 
 Each case is rendered by `evp sim`'s generator (25 s by default, about 500 m; the dataset is kept
 in `--out` and reused while its `sim.yaml` options match, so a re-run after an engine change only
 runs the engine; `--render` renders again) and goes through the same code as `evp run`, mapping
-inline, so the figures are deterministic. Issue 29's targets per run: initialised within 1 s,
->= 95 % of the frames tracked, ATE <= 1 % of the path.
+inline, so the figures are deterministic. Issue 29's targets per run: initialised within 1 s
+(of the motion's start: the pan is held still for its first second), >= 95 % of the frames
+tracked, ATE <= 1 % of the path.
 
 Usage: python bench/motion_classes.py [--out runs/motion_classes] [--scenario road-drive] [--fps 10 30] [--seeds 1 2 3] [--duration 25] [--speed M_S] [--render]
 
@@ -33,11 +36,12 @@ from evp.io.run_outputs import write_outputs
 from evp.pipeline import run_dataset
 from evp.run_setup import camera_for, make_estimator, resolve_settings
 from evp.sim.generate import generate
-from evp.sim.scenarios import SCENARIOS, SimOptions
+from evp.sim.scenarios import PAN_STILL_S, SCENARIOS, SimOptions
 
 INIT_TARGET_S = 1.0
 TRACKED_TARGET_PERCENT = 95.0
 ATE_TARGET_PERCENT = 1.0
+STILL_AT_START_S = {"handheld-pan": PAN_STILL_S}  # nothing to initialise on before the motion
 
 COLUMNS = [
     ("case", "{case}"),
@@ -74,7 +78,7 @@ def render(scenario: str, options: SimOptions, folder: Path, force: bool) -> flo
     return time.perf_counter() - start
 
 
-def run_engine(dataset_path: Path, out: Path) -> dict:
+def run_engine(dataset_path: Path, out: Path, still_s: float = 0.0) -> dict:
     """The dataset through `evp run`'s code; the figures of the table."""
     dataset = open_dataset(dataset_path)
     settings = resolve_settings(Settings(), dataset)
@@ -102,7 +106,7 @@ def run_engine(dataset_path: Path, out: Path) -> dict:
         "engine_s": engine_s,
     }
     meets = [
-        record["init_s"] is not None and record["init_s"] <= INIT_TARGET_S,
+        record["init_s"] is not None and record["init_s"] <= still_s + INIT_TARGET_S,
         record["tracked_percent"] >= TRACKED_TARGET_PERCENT,
         record["ate_path_percent"] is not None and record["ate_path_percent"] <= ATE_TARGET_PERCENT,
     ]
@@ -145,7 +149,7 @@ def main() -> None:
             print(f"{case}:", flush=True)
             render_s = render(args.scenario, SimOptions(duration_s=args.duration, fps=fps, seed=seed, speed_m_s=args.speed), folder / "data", args.render)
             print("  running the engine", flush=True)
-            record = {"case": case, "path_m": ground_truth_path_m(folder / "data"), "render_s": render_s, **run_engine(folder / "data", folder / "run")}
+            record = {"case": case, "path_m": ground_truth_path_m(folder / "data"), "render_s": render_s, **run_engine(folder / "data", folder / "run", STILL_AT_START_S.get(args.scenario, 0.0))}
             rows.append(table.add(record))
             print(f"  {rows[-1]}", flush=True)
     print("\n" + table.header() + "\n" + "\n".join(rows))

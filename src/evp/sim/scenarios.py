@@ -293,6 +293,17 @@ def circle_indoor(options: SimOptions) -> Scenario:
     )
 
 
+def _furnished_lab(options: SimOptions, rng: np.random.Generator) -> list[TexturedQuad]:
+    """Seed 001's 6 x 5 x 2.5 m lab: textured floor and walls, five boxes of furniture."""
+    floor = _ground(options, "floor", 3.5, 0.004)
+    wall_texture = procedural_texture("wall", (22.0, 2.5), 0.01, options.seed)
+    quads = [floor] + box_quads([0, 0, 1.25], [6.0, 5.0, 2.5], wall_texture, 0.01, "room", skip_bottom=True)
+    for i, (x, y) in enumerate([(0.0, -2.0), (2.6, 0.0), (-2.6, 0.2), (0.0, 2.1), (0.9, 0.9)]):
+        size = rng.uniform(0.3, 0.7, 3)
+        quads += box_quads([x, y, size[2] / 2], size, procedural_texture("wall", (2.0, 2.0), 0.005, options.seed + 10 + i), 0.005, f"object{i}")
+    return quads
+
+
 def wheel_robot_room(options: SimOptions) -> Scenario:
     """Seed 001: a wheel robot carrying a phone (camera forward, 0.2 m up) drives a loop with turns
     through a 6 x 5 m lab with furniture, at 0.3 m/s; wheel encoders + gyro, WiFi from 3 APs."""
@@ -308,12 +319,7 @@ def wheel_robot_room(options: SimOptions) -> Scenario:
     rough = SplineMotion(times, samples, Rotation.identity(len(times))).state(times)
     yaw = paths.smooth(heading_from_velocity(rough.velocity, min_speed=0.05)[:, None], 0.5)[:, 0]
     motion = SplineMotion(times, samples, Rotation.from_euler("Z", yaw[:, None]))
-    floor = _ground(options, "floor", 3.5, 0.004)
-    wall_texture = procedural_texture("wall", (22.0, 2.5), 0.01, options.seed)
-    quads = [floor] + box_quads([0, 0, 1.25], [6.0, 5.0, 2.5], wall_texture, 0.01, "room", skip_bottom=True)
-    for i, (x, y) in enumerate([(0.0, -2.0), (2.6, 0.0), (-2.6, 0.2), (0.0, 2.1), (0.9, 0.9)]):
-        size = rng.uniform(0.3, 0.7, 3)
-        quads += box_quads([x, y, size[2] / 2], size, procedural_texture("wall", (2.0, 2.0), 0.005, options.seed + 10 + i), 0.005, f"object{i}")
+    quads = _furnished_lab(options, rng)
     pitch_up = Rotation.from_euler("x", -5, degrees=True).as_matrix()
     return Scenario(
         "wheel-robot-room",
@@ -386,6 +392,46 @@ def hover_drift(options: SimOptions) -> Scenario:
     )
 
 
+PAN_ARM_M = 0.35  # phone ahead of the turning body's axis: held out at chest height
+PAN_HALF_ANGLE_DEG = 80.0  # the sweep, either side of the start's view
+PAN_STILL_S = 1.0  # held still before the pan begins
+
+
+def handheld_pan(options: SimOptions) -> Scenario:
+    """Rotation-dominant hand-held video: a person standing off-centre in seed 001's lab turns
+    on the spot to pan the room, phone held forward 0.35 m from the body's axis at 1.4 m, sweeping
+    80 degrees either way and back (the hand moves at --speed, 0.3 m/s by default: ~50 degrees/s
+    at the fastest), with a hand's tremor and tilt. The translation is only the phone's arc, a few
+    centimetres between frames against walls 2-4 m away: the parallax a monocular start and new
+    map points need comes slowly, while the view turns fast."""
+    rng = np.random.default_rng(options.seed)
+    camera = _camera(options, "nexus5x_640x380")
+    duration = options.duration_s or 20.0
+    speed = options.speed_m_s or 0.3
+    height = options.altitude_m or 1.4
+    times = np.arange(0.0, duration + 1e-9, paths.SAMPLE_DT)
+    half = np.radians(PAN_HALF_ANGLE_DEG)
+    period = 2 * np.pi * half * PAN_ARM_M / speed  # the sine sweep at its fastest moves the hand at `speed`
+    turning = np.clip(times - PAN_STILL_S, 0.0, None)
+    yaw = np.radians(rng.uniform(0, 360)) + half * np.sin(2 * np.pi * turning / period)
+    standing = np.array([-0.8, 0.4]) + rng.uniform(-0.3, 0.3, 2)
+    tremor = paths.smooth(rng.normal(0, 0.01, (len(times), 3)), 0.3) * 3
+    positions = np.column_stack([standing + PAN_ARM_M * np.column_stack([np.cos(yaw), np.sin(yaw)]), np.full(len(times), height)]) + tremor
+    tilt = paths.smooth(rng.normal(0, 0.02, (len(times), 2)), 0.5) * 3
+    rotation = Rotation.from_euler("ZYX", np.column_stack([yaw, tilt[:, 0], tilt[:, 1]]))
+    return Scenario(
+        "handheld-pan",
+        camera,
+        FORWARD,
+        np.zeros(3),
+        SplineMotion(times, positions, rotation),
+        Scene(_furnished_lab(options, rng)),
+        (25.0330, 121.5654, 10.0),
+        ("imu",),
+        notes=[f"hand-held pan of +-{PAN_HALF_ANGLE_DEG:.0f} degrees, phone {PAN_ARM_M} m from the turning axis, hand at up to {speed:.2f} m/s"],
+    )
+
+
 MAX_LATERAL_ACCEL_M_S2 = 3.0  # a comfortable curve for a driver: the road's tightest radius is v^2 / this
 
 
@@ -432,6 +478,7 @@ SCENARIOS: dict[str, Callable[[SimOptions], Scenario]] = {
     "marker-field": marker_field,
     "hover-drift": hover_drift,
     "road-drive": road_drive,
+    "handheld-pan": handheld_pan,
 }
 
 

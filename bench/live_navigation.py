@@ -2,7 +2,7 @@
 barometer streamed in real time to `evp serve` over loopback, GPS spoofed from mid-flight, and the
 bundled sample streamed in real time.
 
-Usage: python bench/live_navigation.py [--duration 120] [--spoof-start 60] [--dataset DIR] [--cases fused plain two sample] [--keep DIR] [--mapping inline|thread]
+Usage: python bench/live_navigation.py [--duration 120] [--spoof-start 60] [--dataset DIR] [--cases fused plain two sample] [--keep DIR] [--slam KEY=VALUE ...]
 
 The issue's flight is 300 s with spoofing from 150 s (`--duration 300 --spoof-start 150`: ~1.5 min
 to render at 30 fps on two free cores, then 5 min of streaming per case); the default is the 120 s
@@ -165,11 +165,11 @@ def main() -> None:
         "--cases", nargs="+", default=["fused", "plain", "sample"], choices=["fused", "plain", "two", "sample"], help="which streams to run (fused needs plain's p95 for its ratio; two: two vehicles streaming the flight at once)"
     )
     parser.add_argument("--keep", type=Path, help="keep the stations' data and the streams' answers here")
-    parser.add_argument("--mapping", choices=["inline", "thread"], default="inline", help="the stations' slam.mapping (inline: the default)")
+    parser.add_argument("--slam", nargs="+", default=[], metavar="KEY=VALUE", help="the stations' slam settings other than the defaults (mapping=thread, loop_closing=false)")
     args = parser.parse_args()
-    command = f"python bench/live_navigation.py --duration {args.duration:g} --spoof-start {args.spoof_start:g}" + (f" --mapping {args.mapping}" if args.mapping != "inline" else "")
-    slam = {"mapping": args.mapping}
-    mapping = "" if args.mapping == "inline" else ", mapping in a thread"
+    command = f"python bench/live_navigation.py --duration {args.duration:g} --spoof-start {args.spoof_start:g}" + (f" --slam {' '.join(args.slam)}" if args.slam else "")
+    slam = {key: yaml.safe_load(value) for key, value in (item.split("=", 1) for item in args.slam)}
+    mapping = "".join(f", slam.{item}" for item in args.slam)  # the rows of other settings are kept apart
     print(f"command: {command}  (load average {os.getloadavg()[0]:.1f})")
     table = Results("live_navigation", command).table(
         "streams",

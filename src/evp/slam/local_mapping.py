@@ -21,6 +21,7 @@ import numpy as np
 
 from evp.config import SlamSettings
 from evp.geometry.epipolar_band import epipolar_pairs
+from evp.geometry.transforms import rotation_angle
 from evp.geometry.two_view import check_points, triangulate
 from evp.optim.bundle_adjustment import BundleProblem
 from evp.optim.reprojection import CHI2_1DOF
@@ -41,14 +42,6 @@ from evp.vision.orb import OrbExtractor, window_stretch
 # limit that stopped the live circle's drift.
 STARVED_SHARE = 0.1
 STARVED_MIN_PARALLAX_DEG = 1.1
-# Two keyframes turned by an angle theta between them, their centres a baseline b apart (as a share
-# of the scene depth), gain about b / theta of parallax per radian of turn: a hand-held pan (the
-# phone a forearm from the turning axis, walls a few metres away) gains 0.1. The views have parted
-# about half when the turn reaches half the narrower field of view, so a pair whose parallax
-# there is still under slam.new_point_min_parallax_deg will never reach it: the points it can
-# make take STARVED_MIN_PARALLAX_DEG instead, as a starved keyframe's do (a pan's new points are
-# what keeps it tracking, and a turn's pose barely depends on their depth). The pair must have
-# turned by at least the nominal parallax, so a hovering sway keeps the strict limit.
 
 
 @dataclass
@@ -234,9 +227,16 @@ class LocalMapper:
         self.recent_points += created
 
     def _turning_apart(self, kf: KeyFrame, nb: KeyFrame, baseline: float) -> bool:
-        """Whether the pair turns too much for its baseline to reach the nominal parallax before
-        the views part (the reasoning is above STARVED_SHARE)."""
-        turn = np.arccos(np.clip((np.trace(kf.T_cw[:3, :3] @ nb.T_cw[:3, :3].T) - 1) / 2, -1.0, 1.0))
+        """Whether the pair turns too much for its baseline ever to give the nominal parallax; its
+        points then take STARVED_MIN_PARALLAX_DEG, as a starved keyframe's do. A pair turned by
+        theta with its centres a baseline b apart (as a share of the scene depth) gains about
+        b / theta of parallax per radian of turn (a hand-held pan, the phone a forearm from the
+        turning axis and walls a few metres away: 0.1). Its views have half parted when the turn
+        reaches half the narrower field of view, so a pair still under the nominal parallax there
+        will never reach it; a pan's new points are what keeps it tracking, and a turn's pose
+        barely depends on their depth. The pair must have turned by at least the nominal
+        parallax: a hovering sway keeps the strict limit."""
+        turn = rotation_angle(kf.T_cw[:3, :3] @ nb.T_cw[:3, :3].T)
         nominal = np.arccos(self._min_parallax_cos)
         return bool(turn >= nominal and baseline / turn * self._half_narrow_view < nominal)
 

@@ -21,7 +21,6 @@ import numpy as np
 
 from evp.config import SlamSettings
 from evp.geometry.epipolar_band import epipolar_pairs
-from evp.geometry.transforms import rotation_angle
 from evp.geometry.two_view import check_points, triangulate
 from evp.optim.bundle_adjustment import BundleProblem
 from evp.optim.reprojection import CHI2_1DOF
@@ -227,16 +226,17 @@ class LocalMapper:
         self.recent_points += created
 
     def _turning_apart(self, kf: KeyFrame, nb: KeyFrame, baseline: float) -> bool:
-        """Whether the pair turns too much for its baseline ever to give the nominal parallax; its
-        points then take STARVED_MIN_PARALLAX_DEG, as a starved keyframe's do. A pair turned by
-        theta with its centres a baseline b apart (as a share of the scene depth) gains about
-        b / theta of parallax per radian of turn (a hand-held pan, the phone a forearm from the
-        turning axis and walls a few metres away: 0.1). Its views have half parted when the turn
-        reaches half the narrower field of view, so a pair still under the nominal parallax there
-        will never reach it; a pan's new points are what keeps it tracking, and a turn's pose
-        barely depends on their depth. The pair must have turned by at least the nominal
-        parallax: a hovering sway keeps the strict limit."""
-        turn = rotation_angle(kf.T_cw[:3, :3] @ nb.T_cw[:3, :3].T)
+        """Whether the pair's views turn apart too fast for its baseline ever to give the nominal
+        parallax; its points then take STARVED_MIN_PARALLAX_DEG, as a starved keyframe's do. A
+        pair whose optical axes are theta apart, its centres a baseline b apart (as a share of
+        the scene depth), gains about b / theta of parallax per radian of turn (a hand-held pan,
+        the phone a forearm from the turning axis and walls a few metres away: 0.1). Its views
+        have half parted when the turn reaches half the narrower field of view, so a pair still
+        under the nominal parallax there will never reach it; a pan's new points are what keeps
+        it tracking, and a turn's pose barely depends on their depth. Only the optical axis's turn
+        parts the views (a downward camera yawing keeps its overlap), and it must be at least the
+        nominal parallax: a hovering sway keeps the strict limit."""
+        turn = np.arccos(np.clip(kf.T_cw[2, :3] @ nb.T_cw[2, :3], -1.0, 1.0))  # rows: the optical axes in the world
         nominal = np.arccos(self._min_parallax_cos)
         return bool(turn >= nominal and baseline / turn * self._half_narrow_view < nominal)
 

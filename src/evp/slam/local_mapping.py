@@ -64,8 +64,6 @@ class LocalMapper:
         self.recent_points: list[int] = []
         self._min_parallax_cos = float(np.cos(np.radians(settings.new_point_min_parallax_deg)))
         self._starved_min_parallax_cos = float(np.cos(np.radians(STARVED_MIN_PARALLAX_DEG)))
-        u_min, v_min, u_max, v_max = self.bounds
-        self._half_narrow_view = float(min(np.arctan((u_max - u_min) / 2 / self.K[0, 0]), np.arctan((v_max - v_min) / 2 / self.K[1, 1])))
         self.keyframes_waiting: Callable[[], bool] = lambda: False
         self.step_done: Callable[[], None] = lambda: None
         self.loop_closer = LoopCloser(slam_map, extractor, settings) if settings.loop_closing else None
@@ -180,11 +178,9 @@ class LocalMapper:
     def _triangulate_with(self, kf: KeyFrame, nb: KeyFrame, sigma2: np.ndarray, scale: float, fx: float, min_parallax_cos: float) -> None:
         """New points from unmatched features of two keyframes (epipolar band, descriptor ratio,
         rotation consistency, parallax, reprojection and scale checks)."""
-        baseline = np.linalg.norm(kf.centre - nb.centre) / max(self.map.median_depth(nb), 1e-9)
-        if baseline < 0.01:
+        baseline = np.linalg.norm(kf.centre - nb.centre)
+        if baseline / max(self.map.median_depth(nb), 1e-9) < 0.01:
             return
-        if self._turning_apart(kf, nb, baseline):
-            min_parallax_cos = self._starved_min_parallax_cos
         free_a = np.flatnonzero(kf.point_ids < 0)
         free_b = np.flatnonzero(nb.point_ids < 0)
         if len(free_a) == 0 or len(free_b) == 0:
@@ -224,21 +220,6 @@ class LocalMapper:
             created.append(point.id)
         self.map.refresh_points(created, self.extractor.scale_factors)
         self.recent_points += created
-
-    def _turning_apart(self, kf: KeyFrame, nb: KeyFrame, baseline: float) -> bool:
-        """Whether the pair's views turn apart too fast for its baseline ever to give the nominal
-        parallax; its points then take STARVED_MIN_PARALLAX_DEG, as a starved keyframe's do. A
-        pair whose optical axes are theta apart, its centres a baseline b apart (as a share of
-        the scene depth), gains about b / theta of parallax per radian of turn (a hand-held pan,
-        the phone a forearm from the turning axis and walls a few metres away: 0.1). Its views
-        have half parted when the turn reaches half the narrower field of view, so a pair still
-        under the nominal parallax there will never reach it; a pan's new points are what keeps
-        it tracking, and a turn's pose barely depends on their depth. Only the optical axis's turn
-        parts the views (a downward camera yawing keeps its overlap), and it must be at least the
-        nominal parallax: a hovering sway keeps the strict limit."""
-        turn = np.arccos(np.clip(kf.T_cw[2, :3] @ nb.T_cw[2, :3], -1.0, 1.0))  # rows: the optical axes in the world
-        nominal = np.arccos(self._min_parallax_cos)
-        return bool(turn >= nominal and baseline / turn * self._half_narrow_view < nominal)
 
     def _fuse_into_neighbours(self, kf: KeyFrame) -> None:
         """Project the keyframe's points into its neighbours (ORB-SLAM's Fuse)."""

@@ -60,6 +60,7 @@ from evp.fusion.map_georeference import MapGeoreference
 from evp.fusion.measurements import BaroAltitude, GpsPosition, RangeHeight, VisualPose, WheelSpeed, YawRate
 from evp.fusion.nav_state import ATTITUDE, ERROR_DIM, LOG_SCALE, MAP_ATTITUDE, MAP_POSITION, POSITION, VELOCITY, NavState, skew3
 from evp.fusion.navigation_filter import NavigationFilter, NavigationOutput, initial_covariance
+from evp.fusion.preintegration import preintegrate, samples_between
 from evp.fusion.visual_inertial_init import InertialAlignment, initialise_visual_inertial
 from evp.fusion.wheel_init import initialise_from_wheels
 from evp.types import BaroSample, Frame, GpsFix, ImuSample, PoseEstimate, RangeSample, TrackingState, WheelOdometry
@@ -88,6 +89,14 @@ START_MAP_POSITION_SIGMA_M = 0.01
 REFINE_KEYFRAMES = 120
 # the tracked poses whose second differences give the refinement its position noise: 2 s at 30 fps
 NOISE_POSES = 60
+# A visual-inertial start takes its velocity from the tracked poses of this last span (a straight
+# line fitted to them, at least START_VELOCITY_POSES), times the alignment's scale: the
+# alignment's own velocity at its newest keyframe is the least determined of its unknowns (seed
+# 002's flight E, cruising straight at 8 m/s: 11.6 m/s 30 degrees off against the poses' 9.0 m/s
+# at that scale; the filter then refused the visual poses and called the GPS spoofed), and the
+# poses' velocity is the one the next visual updates measure.
+START_VELOCITY_SPAN_S = 0.5
+START_VELOCITY_POSES = 3
 # IMU samples kept while waiting to relocalise in a saved map: its start needs the one at or before
 # the relocalised frame, which a frame's telemetry (up to its stamp) always brings in (1 s at 200 Hz).
 SAVED_MAP_IMU_KEPT = 200
@@ -178,7 +187,7 @@ class NavigationStage:
         self._imu: list[ImuSample] = []  # before the filter starts: the samples the initialisation needs
         self._wheel: list[WheelOdometry] = []  # before the filter starts: the wheel records, for the wheel start
         self._keyframes: list[tuple[float, np.ndarray]] = []
-        self._recent: deque[tuple[float, np.ndarray]] = deque(maxlen=NOISE_POSES)  # before the start: the newest tracked positions
+        self._recent: deque[tuple[float, np.ndarray]] = deque(maxlen=NOISE_POSES)  # before the start: the newest tracked T_map_cam
         self._baro: list[tuple[float, float]] = []  # before the filter starts: heights to check the initialisation's scale
         self._last_imu_stamp = -math.inf
         self._ground_height_m: float | None = None  # the range finder's ground, in world z, from its first reading
@@ -483,7 +492,7 @@ class NavigationStage:
         scale's sigma is small enough; the refinement's position noise is measured on the newest
         tracked poses."""
         s = self.settings
-        self._recent.append((estimate.timestamp, estimate.T_world_cam[:3, 3].copy()))
+        self._recent.append((estimate.timestamp, estimate.T_world_cam.copy()))
         if self._keyframes and estimate.timestamp - self._keyframes[-1][0] < s.vi_init_keyframe_interval_s:
             return
         self._keyframes.append((estimate.timestamp, estimate.T_world_cam))
@@ -508,7 +517,7 @@ class NavigationStage:
                 else:
                     refined = True
                     history = self._keyframes[::-2][::-1]  # every keyframe since the first, 0.5 s apart
-                    noise = white_position_noise([t for t, _ in self._recent], [p for _, p in self._recent])
+                    noise = white_position_noise([t for t, _ in self._recent], [T[:3, 3] for _, T in self._recent])
                     alignment = refine_inertial(history, self._imu, self.T_body_cam, alignment, s, position_sigma_map=noise)
                     window = history
                     if alignment.observable and not alignment.scale_sigma <= s.vi_refine_max_scale_sigma:
@@ -551,9 +560,13 @@ class NavigationStage:
 
     def _start(self, alignment: InertialAlignment, source: str) -> None:
         t, T_map_cam = self._keyframes[-1]
-        state = alignment.nav_state(t, T_map_cam, self.T_body_cam, alignment.velocities_map[-1])
+        velocity_map = alignment.velocities_map[-1]
+        if source == "visual-inertial":
+            velocity_map = self._tracked_velocity(t, alignment, velocity_map)
+        state = alignment.nav_state(t, T_map_cam, self.T_body_cam, velocity_map)
         camera_position = state.position + state.R_world_body @ self.T_body_cam[:3, 3]
-        self.filter = NavigationFilter(state, self.settings, self._start_covariance(camera_position))
+        scaled_velocity = state.velocity if source == "visual-inertial" else np.zeros(3)  # the wheels measure theirs in metres
+        self.filter = NavigationFilter(state, self.settings, self._start_covariance(camera_position, scaled_velocity))
         self.alignment, self.initialised_at = alignment, t
         self.status = f"initialised at {t:.3f} s from {source}: scale {alignment.scale:.4g} m per map unit"
         self.world_changes += 1
@@ -565,6 +578,28 @@ class NavigationStage:
         for record in self._wheel[start_wheel:]:
             self._observe_wheels(record)
         self._imu, self._keyframes, self._wheel, self._baro = [], [], [], []
+
+    def _tracked_velocity(self, t: float, alignment: InertialAlignment, fallback: np.ndarray) -> np.ndarray:
+        """The body's velocity at ``t`` (metres per second, map axes): the slope of a straight line
+        through the tracked positions of the last START_VELOCITY_SPAN_S, times the alignment's
+        scale, is the velocity at their mean time (exactly so under constant acceleration); the
+        IMU carries it on to ``t`` (preintegrated on the alignment's biases, gravity its). The
+        camera's velocity stands for the body's: they differ by the rotation rate times the lever
+        arm (1 cm/s for 10 cm at 0.1 rad/s). ``fallback`` when fewer than START_VELOCITY_POSES were
+        tracked in the span."""
+        recent = [(ti, T) for ti, T in self._recent if t - START_VELOCITY_SPAN_S <= ti <= t]
+        if len(recent) < START_VELOCITY_POSES:
+            return fallback
+        times = np.array([ti for ti, _ in recent])
+        middle = float(times.mean())
+        slope = np.polyfit(times - middle, np.array([T[:3, 3] for _, T in recent]), 1)[0]
+        imu_t = np.array([sample.timestamp for sample in self._imu], float)
+        gyro = np.array([sample.angular_velocity_rad_s for sample in self._imu], float)
+        force = np.array([sample.linear_acceleration_m_s2 for sample in self._imu], float) - alignment.accel_bias
+        carried = preintegrate(*samples_between(imu_t, gyro, force, middle, t), alignment.gyro_bias)
+        nearest = min(recent, key=lambda pose: abs(pose[0] - middle))[1]
+        R_map_body = nearest[:3, :3] @ self.T_body_cam[:3, :3].T
+        return alignment.scale * slope + R_map_body @ carried.dv + alignment.gravity_map * (t - middle)
 
     def _start_from_saved_map(self, estimate: PoseEstimate) -> None:
         """Start the filter at a pose in the saved map, from its georeference (see the module
@@ -635,13 +670,18 @@ class NavigationStage:
         text = f"not relocalised in the saved map by {timestamp:.3f} s: SLAM started a new map; georeferencing by GPS as without a saved map"
         self._warn(timestamp, "saved_map_abandoned", text)
 
-    def _start_covariance(self, camera_position: np.ndarray) -> np.ndarray:
+    def _start_covariance(self, camera_position: np.ndarray, scaled_velocity: np.ndarray) -> np.ndarray:
         """The prior (settings) with what the alignment determined narrowed to the START_ sigmas.
         The world's origin is the map's, so the camera's position is the scale times its map
         position: its uncertainty along that direction is the scale's, fully correlated with it.
         Given as independent, a 1 cm position and origin would pin the scale to 1 cm over the
         distance from the map origin (1 % at 1 m) whatever the alignment's doubt: the rendered
-        circle kept its start's -11 % scale to the end with a 1.2 % sigma. The scale's own sigma is
+        circle kept its start's -11 % scale to the end with a 1.2 % sigma. Likewise the velocity
+        of a visual-inertial start (``scaled_velocity``; zero when the velocity was measured in
+        metres): the alignment fits it to the keyframes' map displacements times the scale, so it
+        is off by the scale's share. Given as 0.1 m/s independent of it, a drone cruising at 6 m/s
+        pinned the scale within seconds to a start 18 % off (seed 002's flight E: the visual poses
+        then refused, the GPS declared spoofed, 29 m off after the alignment phase). The scale's own sigma is
         the largest an alignment may have, not the alignment's least-squares one: that leaves out
         the accelerometer bias it neglects (with the truth's poses, the circle's swaying start gave
         a scale 18 % off with a least-squares sigma under 10 %)."""
@@ -660,4 +700,8 @@ class NavigationStage:
         # d(position)/d(log scale) = the camera's offset from the map origin, metric, world axes
         P[POSITION, POSITION] += np.outer(camera_position, camera_position) * scale_sigma**2
         P[POSITION, LOG_SCALE] = P[LOG_SCALE, POSITION] = camera_position * scale_sigma**2
+        P[VELOCITY, VELOCITY] += np.outer(scaled_velocity, scaled_velocity) * scale_sigma**2
+        P[VELOCITY, LOG_SCALE] = P[LOG_SCALE, VELOCITY] = scaled_velocity * scale_sigma**2
+        P[POSITION, VELOCITY] += np.outer(camera_position, scaled_velocity) * scale_sigma**2
+        P[VELOCITY, POSITION] = P[POSITION, VELOCITY].T
         return P

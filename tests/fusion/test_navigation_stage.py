@@ -143,7 +143,7 @@ def test_without_motion_the_scale_is_not_yet_observable():
 def test_a_start_off_in_scale_and_velocity_takes_the_poses_velocity_and_recovers(monkeypatch):
     """The alignment's velocity at its newest keyframe is its least determined unknown (seed 002's
     flight E started 3 m/s off it): the filter starts from the tracked poses' velocity at the
-    alignment's scale, that velocity's doubt tied to the scale's, so a start 15 % off in scale
+    alignment's scale, consistent with the poses that follow, so a start 15 % off in scale
     converges without a visual pose refused."""
     duration = 10.0
     import evp.fusion.navigation_stage as navigation_stage
@@ -169,4 +169,4 @@ def test_a_start_off_in_scale_and_velocity_takes_the_poses_velocity_and_recovers
     expected = R_WORLD_MAP.T @ (1.15 * trajectory.velocity(middle) + trajectory.velocity(1.0) - trajectory.velocity(middle))
     np.testing.assert_allclose(stage.alignment.R_world_map.T @ start.velocity, expected, atol=0.03)  # the lever arm, the sinusoid's jerk
     assert all(r.visual.accepted for r in stage.records if r.visual is not None)
-    assert abs(stage.records[-1].output.scale / MAP_SCALE - 1.0) < 0.01
+    assert abs(stage.records[-1].output.scale / MAP_SCALE - 1.0) < 0.02  # from 15 % in 9 s

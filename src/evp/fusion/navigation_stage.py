@@ -565,8 +565,7 @@ class NavigationStage:
             velocity_map = self._tracked_velocity(t, alignment, velocity_map)
         state = alignment.nav_state(t, T_map_cam, self.T_body_cam, velocity_map)
         camera_position = state.position + state.R_world_body @ self.T_body_cam[:3, 3]
-        scaled_velocity = state.velocity if source == "visual-inertial" else np.zeros(3)  # the wheels measure theirs in metres
-        self.filter = NavigationFilter(state, self.settings, self._start_covariance(camera_position, scaled_velocity))
+        self.filter = NavigationFilter(state, self.settings, self._start_covariance(camera_position))
         self.alignment, self.initialised_at = alignment, t
         self.status = f"initialised at {t:.3f} s from {source}: scale {alignment.scale:.4g} m per map unit"
         self.world_changes += 1
@@ -670,18 +669,13 @@ class NavigationStage:
         text = f"not relocalised in the saved map by {timestamp:.3f} s: SLAM started a new map; georeferencing by GPS as without a saved map"
         self._warn(timestamp, "saved_map_abandoned", text)
 
-    def _start_covariance(self, camera_position: np.ndarray, scaled_velocity: np.ndarray) -> np.ndarray:
+    def _start_covariance(self, camera_position: np.ndarray) -> np.ndarray:
         """The prior (settings) with what the alignment determined narrowed to the START_ sigmas.
         The world's origin is the map's, so the camera's position is the scale times its map
         position: its uncertainty along that direction is the scale's, fully correlated with it.
         Given as independent, a 1 cm position and origin would pin the scale to 1 cm over the
         distance from the map origin (1 % at 1 m) whatever the alignment's doubt: the rendered
-        circle kept its start's -11 % scale to the end with a 1.2 % sigma. Likewise the velocity
-        of a visual-inertial start (``scaled_velocity``; zero when the velocity was measured in
-        metres): the alignment fits it to the keyframes' map displacements times the scale, so it
-        is off by the scale's share. Given as 0.1 m/s independent of it, a drone cruising at 6 m/s
-        pinned the scale within seconds to a start 18 % off (seed 002's flight E: the visual poses
-        then refused, the GPS declared spoofed, 29 m off after the alignment phase). The scale's own sigma is
+        circle kept its start's -11 % scale to the end with a 1.2 % sigma. The scale's own sigma is
         the largest an alignment may have, not the alignment's least-squares one: that leaves out
         the accelerometer bias it neglects (with the truth's poses, the circle's swaying start gave
         a scale 18 % off with a least-squares sigma under 10 %)."""
@@ -700,8 +694,4 @@ class NavigationStage:
         # d(position)/d(log scale) = the camera's offset from the map origin, metric, world axes
         P[POSITION, POSITION] += np.outer(camera_position, camera_position) * scale_sigma**2
         P[POSITION, LOG_SCALE] = P[LOG_SCALE, POSITION] = camera_position * scale_sigma**2
-        P[VELOCITY, VELOCITY] += np.outer(scaled_velocity, scaled_velocity) * scale_sigma**2
-        P[VELOCITY, LOG_SCALE] = P[LOG_SCALE, VELOCITY] = scaled_velocity * scale_sigma**2
-        P[POSITION, VELOCITY] += np.outer(camera_position, scaled_velocity) * scale_sigma**2
-        P[VELOCITY, POSITION] = P[POSITION, VELOCITY].T
         return P

@@ -8,6 +8,7 @@ import numpy as np
 from evp.config import NavigationSettings, Settings
 from evp.estimator import Estimator
 from evp.eval.evaluate import evaluate
+from evp.fusion import navigation_stage
 from evp.fusion.navigation_stage import NavigationStage
 from evp.pipeline import run_frames
 from evp.types import Frame, ImuSample, PoseEstimate, TrackingState, Trajectory
@@ -146,8 +147,6 @@ def test_a_start_off_in_scale_and_velocity_takes_the_poses_velocity_and_recovers
     alignment's scale, consistent with the poses that follow, so a start 15 % off in scale
     converges without a visual pose refused."""
     duration = 10.0
-    import evp.fusion.navigation_stage as navigation_stage
-
     exact = navigation_stage.initialise_visual_inertial
 
     def off(*args, **kwargs):

@@ -38,7 +38,7 @@ import scipy.sparse.linalg
 
 from evp.config import NavigationSettings
 from evp.fusion.nav_state import so3_exp, so3_log
-from evp.fusion.preintegration import Preintegrated, preintegrate, samples_between
+from evp.fusion.preintegration import Preintegrated, imu_arrays, preintegrate, samples_between
 from evp.fusion.visual_inertial_init import InertialAlignment
 from evp.types import ImuSample
 
@@ -105,9 +105,7 @@ def refine_inertial(
     s = settings or NavigationSettings()
     sigma_visual = s.vi_refine_position_sigma_m if visual_position_sigma_m is None else visual_position_sigma_m
     n = len(keyframes)
-    times = np.array([sample.timestamp for sample in imu], float)
-    gyro = np.array([sample.angular_velocity_rad_s for sample in imu], float)
-    accel = np.array([sample.linear_acceleration_m_s2 for sample in imu], float)
+    times, gyro, accel = imu_arrays(imu)
     R_bc, t_bc = T_body_cam[:3, :3], T_body_cam[:3, 3]
     R_visual = [T[:3, :3] @ R_bc.T for _, T in keyframes]
     centres = np.array([T[:3, 3] for _, T in keyframes])

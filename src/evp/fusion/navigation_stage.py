@@ -60,7 +60,7 @@ from evp.fusion.map_georeference import MapGeoreference
 from evp.fusion.measurements import BaroAltitude, GpsPosition, RangeHeight, VisualPose, WheelSpeed, YawRate
 from evp.fusion.nav_state import ATTITUDE, ERROR_DIM, LOG_SCALE, MAP_ATTITUDE, MAP_POSITION, POSITION, VELOCITY, NavState, skew3
 from evp.fusion.navigation_filter import NavigationFilter, NavigationOutput, initial_covariance
-from evp.fusion.preintegration import preintegrate, samples_between
+from evp.fusion.preintegration import imu_arrays, preintegrate, samples_between
 from evp.fusion.visual_inertial_init import InertialAlignment, initialise_visual_inertial
 from evp.fusion.wheel_init import initialise_from_wheels
 from evp.types import BaroSample, Frame, GpsFix, ImuSample, PoseEstimate, RangeSample, TrackingState, WheelOdometry
@@ -592,10 +592,8 @@ class NavigationStage:
         times = np.array([ti for ti, _ in recent])
         middle = float(times.mean())
         slope = np.polyfit(times - middle, np.array([T[:3, 3] for _, T in recent]), 1)[0]
-        imu_t = np.array([sample.timestamp for sample in self._imu], float)
-        gyro = np.array([sample.angular_velocity_rad_s for sample in self._imu], float)
-        force = np.array([sample.linear_acceleration_m_s2 for sample in self._imu], float) - alignment.accel_bias
-        carried = preintegrate(*samples_between(imu_t, gyro, force, middle, t), alignment.gyro_bias)
+        imu_t, gyro, force = imu_arrays(self._imu)
+        carried = preintegrate(*samples_between(imu_t, gyro, force - alignment.accel_bias, middle, t), alignment.gyro_bias)
         nearest = min(recent, key=lambda pose: abs(pose[0] - middle))[1]
         R_map_body = nearest[:3, :3] @ self.T_body_cam[:3, :3].T
         return alignment.scale * slope + R_map_body @ carried.dv + alignment.gravity_map * (t - middle)

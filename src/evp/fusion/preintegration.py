@@ -13,12 +13,14 @@ propagated too (Forster's discrete noise propagation, the right Jacobian taken a
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from evp.fusion.nav_state import so3_exp_many
 from evp.geometry.transforms import skew
+from evp.types import ImuSample
 
 
 @dataclass(frozen=True)
@@ -31,6 +33,14 @@ class Preintegrated:
     dv_dba: np.ndarray  # exact Jacobian of dv with respect to the accelerometer bias
     dp_dba: np.ndarray  # exact Jacobian of dp with respect to the accelerometer bias
     covariance: np.ndarray | None = None  # (9, 9) of (rotation, velocity, position) change, when noise was given
+
+
+def imu_arrays(imu: Sequence[ImuSample]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The samples' times (N,), gyro rates (N, 3) and specific forces (N, 3) as arrays."""
+    times = np.array([sample.timestamp for sample in imu], float)
+    gyro = np.array([sample.angular_velocity_rad_s for sample in imu], float).reshape(-1, 3)
+    accel = np.array([sample.linear_acceleration_m_s2 for sample in imu], float).reshape(-1, 3)
+    return times, gyro, accel
 
 
 def imu_spans(times: np.ndarray, t0: float, t1: float) -> bool:

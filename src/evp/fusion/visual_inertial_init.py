@@ -20,7 +20,7 @@ import numpy as np
 
 from evp.config import NavigationSettings
 from evp.fusion.nav_state import NavState, so3_exp, so3_log
-from evp.fusion.preintegration import imu_spans, preintegrate, samples_between
+from evp.fusion.preintegration import imu_arrays, imu_spans, preintegrate, samples_between
 from evp.types import ImuSample
 
 GRAVITY_REFINEMENTS = 4  # VINS-Mono iterates its tangent-plane refinement 4 times
@@ -83,14 +83,12 @@ def initialise_visual_inertial(
     n = len(keyframes)
     if n < s.vi_init_min_keyframes:
         return InertialAlignment(False, f"too few keyframes: {n} < {s.vi_init_min_keyframes}")
-    times = np.array([sample.timestamp for sample in imu], float)
+    times, gyro, accel = imu_arrays(imu)
     if not imu_spans(times, keyframes[0][0], keyframes[-1][0]):
         return InertialAlignment(False, "the IMU samples do not span the keyframes")
     gaps = np.diff(times)
     if np.any(gaps <= 0) or gaps.max() > s.max_imu_gap_s:
         return InertialAlignment(False, f"the IMU samples are not in time order or have a gap over {s.max_imu_gap_s} s")
-    gyro = np.array([sample.angular_velocity_rad_s for sample in imu], float)
-    accel = np.array([sample.linear_acceleration_m_s2 for sample in imu], float)
     R_bc, t_bc = T_body_cam[:3, :3], T_body_cam[:3, 3]
     stamps = [k[0] for k in keyframes]
     R_body = [T[:3, :3] @ R_bc.T for _, T in keyframes]  # R_map_body

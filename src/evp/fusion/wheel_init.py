@@ -10,9 +10,10 @@ the two, the camera's lever arm taken into account: ``s (c_j - c_i) = d_ij + (R_
 displacement, ``t_bc`` the camera in the body). The visual steps are regressed on the wheels'
 (``1/s`` fitted, not ``s``): over the first metres a keyframe step is a few centimetres, the
 visual poses' noise a large share of it and the wheels' small, and noise in the regressor biases
-a least-squares ratio towards zero (the rendered robot's seed 2 started 8x too small). Gravity is the mean specific force over the
-window turned into map axes: a ground vehicle's accelerations average out far below gravity
-(the bias of the mean is the accelerometer bias, ~0.05 m/s^2: 0.3 degree of tilt).
+a least-squares ratio towards zero (the rendered robot's seed 2 started 8x too small). Gravity
+is the mean specific force over the window turned into map axes: a ground vehicle's
+accelerations average out far below gravity (the bias of the mean is the accelerometer bias,
+~0.05 m/s^2: 0.3 degree of tilt).
 
 The vehicle frame is the IMU's (x forward, z up), the convention of
 :class:`~evp.fusion.measurements.WheelSpeed` with its default ``R_body_vehicle``.
@@ -26,7 +27,7 @@ import numpy as np
 
 from evp.config import NavigationSettings
 from evp.fusion.nav_state import so3_exp, so3_log
-from evp.fusion.preintegration import imu_spans
+from evp.fusion.preintegration import imu_arrays, imu_spans
 from evp.fusion.visual_inertial_init import InertialAlignment
 from evp.types import ImuSample, WheelOdometry
 
@@ -72,7 +73,7 @@ def initialise_from_wheels(
     wheel_t, speed = _forward_speed(wheel)
     if len(wheel_t) < 2 or wheel_t[0] > t0 or wheel_t[-1] < t1:
         return InertialAlignment(False, "the wheel records do not span the keyframes")
-    imu_t = np.array([sample.timestamp for sample in imu], float)
+    imu_t, _, force = imu_arrays(imu)
     if not imu_spans(imu_t, t0, t1):
         return InertialAlignment(False, "the IMU samples do not span the keyframes")
     R_bc, t_bc = T_body_cam[:3, :3], T_body_cam[:3, 3]
@@ -99,7 +100,6 @@ def initialise_from_wheels(
     if not np.isfinite(scale) or scale <= 0:
         return InertialAlignment(False, "the visual poses did not move while the wheels did")
 
-    force = np.array([sample.linear_acceleration_m_s2 for sample in imu], float)
     window = (imu_t >= t0) & (imu_t <= t1)
     up = np.mean(_body_rotation(keyframes, R_bc, imu_t[window]) @ force[window][:, :, None], axis=0)[:, 0]
     gravity_map = -s.gravity_m_s2 * up / np.linalg.norm(up)

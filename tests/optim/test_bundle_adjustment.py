@@ -4,6 +4,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from evp.geometry.transforms import se3
+from evp.optim import bundle_adjustment
 from evp.optim.bundle_adjustment import BundleProblem, bundle_adjust
 
 K = np.array([[450.0, 0, 320], [0, 450.0, 190], [0, 0, 1]])
@@ -42,6 +43,24 @@ def test_bundle_adjustment_recovers_perturbed_poses_and_points():
     assert np.abs(refined - points).max() < 1e-5
     assert chi2.max() < 1e-6
 
+
+
+def test_the_sparse_solve_of_a_whole_map_gives_the_dense_solution(monkeypatch):
+    """Above DENSE_POSE_LIMIT free poses the reduced system goes to SuperLU in symmetric mode:
+    the same steps as the dense Cholesky, so the same result."""
+    rng = np.random.default_rng(3)
+    points, truth, pose_index, point_index, observed = _six_views(rng)
+    perturbed = truth.copy()
+    for T in perturbed[2:]:
+        T[:3, :3] = Rotation.from_rotvec(rng.normal(0, 0.005, 3)).as_matrix() @ T[:3, :3]
+        T[:3, 3] += rng.normal(0, 0.01, 3)
+    fixed = np.array([True, True, False, False, False, False])
+    problem = BundleProblem(perturbed, points + rng.normal(0, 0.01, points.shape), pose_index, point_index, observed, np.ones(len(observed)), fixed, K)
+    dense = bundle_adjust(problem, evaluations=3)
+    monkeypatch.setattr(bundle_adjustment, "DENSE_POSE_LIMIT", 0)
+    sparse = bundle_adjust(problem, evaluations=3)
+    for a, b in zip(dense, sparse, strict=True):
+        np.testing.assert_allclose(a, b, atol=1e-9)
 
 def test_bundle_adjustment_flags_moderate_outliers_and_ends_exact():
     """Mismatches of 7 pixels pass the first round's gross-error gate (10x the chi-square bound);

@@ -166,9 +166,13 @@ class _Linearisation:
 
 def _solve_sparse(S, rhs: np.ndarray) -> np.ndarray | None:
     """Sparse LU of the reduced system: a whole map's keyframes share points with few others, so
-    its pose system is mostly zeros (dense, 2000 keyframes would take 1.2 GB)."""
+    its pose system is mostly zeros (dense, 2000 keyframes would take 1.2 GB). The system is
+    symmetric positive definite (damped): SuperLU's symmetric mode (a minimum-degree ordering of
+    S + S^T, pivots on the diagonal) factors the 300 s drone flight's 457-keyframe system in
+    121 ms against 327 ms with its default column ordering (one BLAS thread; dense Cholesky 273)."""
     try:
-        solution = scipy.sparse.linalg.splu(S.tocsc()).solve(rhs)
+        factor = scipy.sparse.linalg.splu(S.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+        solution = factor.solve(rhs)
     except RuntimeError:  # exactly singular
         return None
     return solution if np.all(np.isfinite(solution)) else None

@@ -286,6 +286,11 @@ class NavigationSettings(_Section):
         gt=0,
         description="GPS fixes paired with the filter's track give the world's heading once they spread this far (RMS from their centroid): 1.5 m GPS error over 20 m is ~4 deg, which GPS updates then refine",
     )
+    gps_align_on_loss_max_heading_sigma_deg: float = Field(
+        15.0,
+        gt=0,
+        description="GPS lost (no fix for gps_monitor.outage_s) before the paired fixes spread gps_align_min_spread_m: the heading is fitted on what they have if its 1-sigma (a fix's error over their spread) is below this, with that uncertainty in the covariance (a climb jammed before the cruise: better a heading to +-15 deg than none); else the world stays the map's, not georeferenced",
+    )
     use_wheels: bool = Field(
         True,
         description="fuse the wheels' forward speed (with the non-holonomic constraint) and yaw rate when the dataset has them, and start from the wheel odometry's scale while the visual-inertial one is not observable",

@@ -11,7 +11,7 @@ from evp.eval.evaluate import evaluate
 from evp.fusion import navigation_stage
 from evp.fusion.navigation_stage import NavigationStage
 from evp.pipeline import run_frames
-from evp.types import Frame, ImuSample, PoseEstimate, TrackingState, Trajectory
+from evp.types import BaroSample, Frame, ImuSample, PoseEstimate, TrackingState, Trajectory
 from tests.fusion.inertial_trajectory import SinusoidTrajectory, imu_times
 from tests.fusion.test_navigation_filter import MAP_SCALE, R_WORLD_MAP, T_BODY_CAM, T_WORLD_MAP
 
@@ -169,3 +169,33 @@ def test_a_start_off_in_scale_and_velocity_takes_the_poses_velocity_and_recovers
     np.testing.assert_allclose(stage.alignment.R_world_map.T @ start.velocity, expected, atol=0.03)  # the lever arm, the sinusoid's jerk
     assert all(r.visual.accepted for r in stage.records if r.visual is not None)
     assert abs(stage.records[-1].output.scale / MAP_SCALE - 1.0) < 0.02  # from 15 % in 9 s
+
+
+def test_a_scale_the_barometer_contradicts_since_the_map_began_is_refused(monkeypatch):
+    """Seed 002's flight D started at 4.4x its map's scale on a window flown level, 109 m up: the
+    climb since the map's first keyframe is what tells. Here the alignment is held back until 6 s
+    (the window's own climb, ~2 m, is too small to check), then made 1.5x off: refused, naming
+    the span; exact, it starts."""
+    duration, held_until = 8.0, 6.0
+    trajectory = SinusoidTrajectory(cruise=(1.0, 0.5, 0.6))  # 0.6 m/s up: ~3.6 m by 6 s
+    exact = navigation_stage.initialise_visual_inertial
+    times = np.arange(0.0, duration, 1.0 / FRAME_RATE)
+    estimates = [PoseEstimate(float(t), map_pose(trajectory, t), TrackingState.OK) for t in times]
+    baro = [BaroSample(float(t), 101000.0, float(trajectory.position(t)[2]) + 250.0) for t in np.arange(0.0, duration, 0.04)]
+    telemetry = sorted([*trajectory.imu(imu_times(duration)), *baro], key=lambda r: r.timestamp)
+
+    def run(factor):
+        def late(keyframes, *args, **kwargs):
+            alignment = exact(keyframes, *args, **kwargs)
+            if keyframes[-1][0] < held_until or not alignment.observable:
+                return replace(alignment, observable=False, reason="held back by the test")
+            return replace(alignment, scale=factor * alignment.scale)
+
+        monkeypatch.setattr(navigation_stage, "initialise_visual_inertial", late)
+        return _run(estimates, telemetry)[0]
+
+    stage = run(1.5)
+    assert stage.filter is None
+    assert "since the map's first keyframe, the barometer climbed" in stage.status, stage.status
+    stage = run(1.0)
+    assert stage.initialised_at == held_until, stage.status

@@ -107,3 +107,23 @@ def test_the_heading_fit_recovers_a_turn_and_a_shift():
     np.testing.assert_allclose(fit.R, R, atol=1e-12)
     np.testing.assert_allclose(fit.t, [100.0, -50.0, 3.0], atol=1e-9)
     assert 0.05 < fit.yaw_sigma_rad < 0.1  # 1.5 m over ~22 m of spread
+
+
+def test_gps_lost_before_the_heading_fit_fits_it_on_the_track_it_has_when_that_is_worth_it():
+    """Jammed 15 s after take-off, before the fixes spread the 50 m asked here: the heading is
+    fitted on the track they have when its uncertainty (a fix's error over their spread) is within
+    the setting, with a warning, and GPS is unavailable; else one warning and no georeference."""
+    trajectory = SinusoidTrajectory()
+    fixes = _fixes(trajectory, outages=[(15.0, DURATION_S)])
+    lenient = SETTINGS.model_copy(update={"gps_align_min_spread_m": 50.0, "gps_align_on_loss_max_heading_sigma_deg": 45.0})
+    stage, result = _run_with_gps(fixes, lenient)
+    assert stage.world_alignment is not None and stage.gps_state == "unavailable"
+    assert [n.code for n in stage.notices if n.level == "warning"] == ["georeferenced_short_track"]
+    times, errors = _horizontal_errors(trajectory, stage, result)
+    assert times[0] > 15.0 + stage.gps_monitor.settings.outage_s - 0.1  # told by the fixes' absence
+    assert errors.max() < 0.1  # exact fixes: the fit is exact whatever its spread
+
+    strict = lenient.model_copy(update={"gps_align_on_loss_max_heading_sigma_deg": 1.0})
+    stage, result = _run_with_gps(fixes, strict)
+    assert stage.world_alignment is None and not any(e.georeferenced for e in result.estimates)
+    assert [n.code for n in stage.notices if n.level == "warning"] == ["not_georeferenced"]

@@ -58,7 +58,8 @@ class GpsMonitor:
         return math.hypot(s.gps_sigma_m, drift)
 
     def without_fixes(self) -> None:
-        """The world was georeferenced without GPS (a saved map's georeference): GPS is
+        """The world was georeferenced without GPS (a saved map's georeference), or on fixes that
+        have since stopped (GPS lost before the heading fit had its track): GPS is
         unavailable until a fix comes, and that fix is checked for ``recovery_s`` before it is
         trusted, as after a loss (a receiver that first locks mid-flight may be a spoofer's)."""
         self._previous_trust = GpsTrust.TRUSTED

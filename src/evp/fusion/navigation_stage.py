@@ -189,6 +189,8 @@ class NavigationStage:
         self._keyframes: list[tuple[float, np.ndarray]] = []
         self._recent: deque[tuple[float, np.ndarray]] = deque(maxlen=NOISE_POSES)  # before the start: the newest tracked T_map_cam
         self._baro: list[tuple[float, float]] = []  # before the filter starts: heights to check the initialisation's scale
+        self._map_start: tuple[float, np.ndarray] | None = None  # before the filter starts: the map's first keyframe (time, T_map_cam)
+        self._map_start_height = math.nan  # the barometer's height there, once measured (NaN: not yet, or no barometer)
         self._last_imu_stamp = -math.inf
         self._ground_height_m: float | None = None  # the range finder's ground, in world z, from its first reading
         self.enu_frame: EnuFrame | None = None  # the take-off point: the first GPS fix with a lock
@@ -196,6 +198,8 @@ class NavigationStage:
         self.gps_monitor = GpsMonitor(monitor_settings or MonitorSettings())
         self.gps_records: list[GpsRecord] = []
         self._gps_pairs: list[tuple[np.ndarray, np.ndarray]] = []  # (filter position, GPS ENU) before the heading is known
+        self._last_paired_fix: GpsFix | None = None  # the newest of them: GPS lost while aligning is told by its age
+        self._told_short_track = False  # GPS lost while aligning on too short a track: warned once per loss
         self._gps_locked = True  # False from a fix without lock until one with it (one warning per loss)
         self._travelled_m = 0.0
         self._last_fix_position: np.ndarray | None = None
@@ -295,6 +299,7 @@ class NavigationStage:
         self._last_fix_position = position.copy()
         if self.world_alignment is None:
             self._gps_pairs.append((position.copy(), enu))
+            self._last_paired_fix, self._told_short_track = fix, False
             self.gps_records.append(GpsRecord(fix.timestamp, enu, None, None))
             self._try_alignment(fix)
             return
@@ -311,15 +316,39 @@ class NavigationStage:
         local = np.array([p for p, _ in self._gps_pairs])
         spread = horizontal_spread(local)
         self.alignment_progress = AlignmentProgress(len(local), spread, self.settings.gps_align_min_spread_m)
-        if spread < self.settings.gps_align_min_spread_m:
-            return
+        if spread >= self.settings.gps_align_min_spread_m:
+            self._georeference(fix, local)
+
+    def _align_on_loss(self, timestamp: float) -> None:
+        """GPS lost before the paired fixes spread enough: fit the heading on what they have when
+        its uncertainty is within ``gps_align_on_loss_max_heading_sigma_deg`` (a warning says so);
+        else warn once and wait (the pairs are kept should GPS come back)."""
+        fix = self._last_paired_fix
+        local = np.array([p for p, _ in self._gps_pairs])
+        spread = horizontal_spread(local)
+        heading_sigma_deg = math.degrees(self._fix_sigma(fix) / max(spread, 1e-9))
+        lost = f"GPS lost at {timestamp:.3f} s (no fix since {fix.timestamp:.3f} s) with the paired fixes spread {spread:.1f} m, short of {self.settings.gps_align_min_spread_m:.0f} m"
+        if heading_sigma_deg <= self.settings.gps_align_on_loss_max_heading_sigma_deg:
+            self._warn(timestamp, "georeferenced_short_track", f"{lost}: heading fitted on them, 1-sigma {heading_sigma_deg:.0f} deg")
+            self._georeference(fix, local)
+            self.gps_monitor.without_fixes()
+        elif not self._told_short_track:
+            self._told_short_track = True
+            self._warn(timestamp, "not_georeferenced", f"{lost}: a heading fitted on them (1-sigma {heading_sigma_deg:.0f} deg) is not worth having; not georeferenced")
+
+    def _fix_sigma(self, fix: GpsFix) -> float:
         accuracy = fix.horizontal_accuracy_m
-        sigma = accuracy if math.isfinite(accuracy) and accuracy > 0 else self.settings.gps_default_sigma_m
+        return accuracy if math.isfinite(accuracy) and accuracy > 0 else self.settings.gps_default_sigma_m
+
+    def _georeference(self, fix: GpsFix, local: np.ndarray) -> None:
+        """Fit the heading and origin to the paired fixes (``fix`` the newest) and move the
+        filter's world to ENU with their uncertainty."""
+        spread = horizontal_spread(local)
         enu = np.array([e for _, e in self._gps_pairs])
-        alignment = align_to_gps(local, enu, sigma)
+        alignment = align_to_gps(local, enu, self._fix_sigma(fix))
         residuals = (local @ alignment.R.T + alignment.t) - enu
         residual = float(np.sqrt(np.mean(np.sum(residuals[:, :2] ** 2, axis=1))))
-        self.alignment_progress = replace(self.alignment_progress, model=ALIGNMENT_MODEL, residual_m=residual)
+        self.alignment_progress = AlignmentProgress(len(local), spread, self.settings.gps_align_min_spread_m, ALIGNMENT_MODEL, residual)
         self.world_changes += 1
         # the receiver's correlated error moved the fit as much as the fixes: the filter's GPS
         # error state takes it; what the fit's residual shows of the track's own distortion
@@ -332,7 +361,7 @@ class NavigationStage:
         if self._ground_height_m is not None:
             self._ground_height_m += float(alignment.t[2])
         self._last_fix_position = alignment.R @ self._last_fix_position + alignment.t
-        self.world_alignment, self._gps_pairs = alignment, []
+        self.world_alignment, self._gps_pairs, self._last_paired_fix = alignment, [], None
         self.status += f"; georeferenced at {fix.timestamp:.3f} s (heading from {alignment.spread_m:.0f} m of GPS track)"
         text = f"georeferenced: {ALIGNMENT_MODEL} fitted to {len(local)} fixes over {spread:.0f} m, RMS residual {residual:.2f} m"
         self.notices.append(Notice(fix.timestamp, "info", "georeferenced", text))
@@ -375,6 +404,8 @@ class NavigationStage:
             events = len(self.gps_monitor.events)
             self.gps_monitor.check_outage(estimate.timestamp)
             self._tell_monitor_events(events)
+        elif self._last_paired_fix is not None and estimate.timestamp - self._last_paired_fix.timestamp > self.gps_monitor.settings.outage_s:
+            self._align_on_loss(estimate.timestamp)
         visual = self._visual_update(estimate) if tracked else None
         output = self.filter.output(self.T_body_cam)
         self.records.append(NavigationRecord(output, visual))
@@ -477,6 +508,7 @@ class NavigationStage:
         if self.filter is None:
             self._keyframes.clear()  # the poses so far belong to another map (or before a jump)
             self._recent.clear()
+            self._map_start, self._map_start_height = None, math.nan
             if self.map_georeference is not None and estimate.tracking_state is not TrackingState.RELOCALIZED:
                 self._leave_saved_map(estimate.timestamp)
             return
@@ -496,6 +528,8 @@ class NavigationStage:
         if self._keyframes and estimate.timestamp - self._keyframes[-1][0] < s.vi_init_keyframe_interval_s:
             return
         self._keyframes.append((estimate.timestamp, estimate.T_world_cam))
+        if self._map_start is None:
+            self._map_start = self._keyframes[-1]
         del self._keyframes[: -(REFINE_KEYFRAMES if s.vi_init_refine else s.vi_init_window_keyframes * VI_INIT_STRIDES[-1])]
         oldest = self._keyframes[0][0]
         keep = next((i for i, sample in enumerate(self._imu) if sample.timestamp >= oldest), len(self._imu))
@@ -539,24 +573,32 @@ class NavigationStage:
         self.status = f"scale not yet observable: {'; '.join(reasons)}"
 
     def _baro_contradiction(self, alignment: InertialAlignment, window: list[tuple[float, np.ndarray]]) -> str | None:
-        """Why the barometer's climb over the keyframe window contradicts the alignment's scale;
-        None when it agrees within ``vi_init_baro_scale_tolerance`` or the climb is too small to
-        tell. A downward camera climbing straight up moves along its optical axis: the alignment
-        can then find a consistent but wrong scale (5.8x off on the rendered drone flight's climb)."""
-        (t0, T0), (t1, T1) = window[0], window[-1]
-        del self._baro[: next((i for i, (t, _) in enumerate(self._baro) if t >= t0 - self.settings.vi_init_keyframe_interval_s), len(self._baro))]
+        """Why the barometer's climb contradicts the alignment's scale, over the keyframe window or
+        since the map's first keyframe; None when both agree within ``vi_init_baro_scale_tolerance``
+        or climb too little to tell. A downward camera climbing straight up moves along its optical
+        axis: the alignment can then find a consistent but wrong scale (5.8x off on the rendered
+        drone flight's climb). A window at cruise altitude cannot see that, the climb since the map
+        began can: seed 002's flight D started at 4.4x its map's scale on a level window, 109 m up."""
+        interval = self.settings.vi_init_keyframe_interval_s
 
         def height(t: float) -> float:
-            near = [h for s, h in self._baro if abs(s - t) <= self.settings.vi_init_keyframe_interval_s]
+            near = [h for s, h in self._baro if abs(s - t) <= interval]
             return float(np.mean(near)) if near else math.nan
 
-        climb_baro = height(t1) - height(t0)
-        if not abs(climb_baro) >= self.settings.vi_init_baro_min_climb_m:  # NaN too: no barometer there
-            return None
-        climb_visual = alignment.scale * float((alignment.R_world_map @ (T1[:3, 3] - T0[:3, 3]))[2])
-        if abs(climb_visual / climb_baro - 1.0) <= self.settings.vi_init_baro_scale_tolerance:
-            return None
-        return f"the barometer climbed {climb_baro:.1f} m where the visual-inertial scale ({alignment.scale:.3g} m per map unit) gives {climb_visual:.1f} m"
+        if self._map_start is not None and math.isnan(self._map_start_height):
+            self._map_start_height = height(self._map_start[0])
+        del self._baro[: next((i for i, (t, _) in enumerate(self._baro) if t >= window[0][0] - interval), len(self._baro))]
+        (t0, T0), (t1, T1) = window[0], window[-1]
+        spans = [("over the keyframe window", height(t1) - height(t0), T1[:3, 3] - T0[:3, 3])]
+        if self._map_start is not None:
+            spans.append(("since the map's first keyframe", height(t1) - self._map_start_height, T1[:3, 3] - self._map_start[1][:3, 3]))
+        for span, climb_baro, step_map in spans:
+            if not abs(climb_baro) >= self.settings.vi_init_baro_min_climb_m:  # NaN too: no barometer there
+                continue
+            climb_visual = alignment.scale * float((alignment.R_world_map @ step_map)[2])
+            if abs(climb_visual / climb_baro - 1.0) > self.settings.vi_init_baro_scale_tolerance:
+                return f"{span}, the barometer climbed {climb_baro:.1f} m where the visual-inertial scale ({alignment.scale:.3g} m per map unit) gives {climb_visual:.1f} m"
+        return None
 
     def _start(self, alignment: InertialAlignment, source: str) -> None:
         t, T_map_cam = self._keyframes[-1]
@@ -577,6 +619,7 @@ class NavigationStage:
         for record in self._wheel[start_wheel:]:
             self._observe_wheels(record)
         self._imu, self._keyframes, self._wheel, self._baro = [], [], [], []
+        self._map_start = None
 
     def _tracked_velocity(self, t: float, alignment: InertialAlignment, fallback: np.ndarray) -> np.ndarray:
         """The body's velocity at ``t`` (metres per second, map axes): the slope of a straight line

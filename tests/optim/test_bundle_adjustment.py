@@ -29,8 +29,10 @@ def _six_views(rng: np.random.Generator):
     return points, truth, pose_index, point_index, np.vstack([project(T, points) for T in truth])
 
 
-def test_bundle_adjustment_recovers_perturbed_poses_and_points():
-    rng = np.random.default_rng(1)
+def _perturbed_six_views(seed: int) -> tuple[BundleProblem, np.ndarray, np.ndarray]:
+    """The six views with the four free poses and every point perturbed: the problem, the true
+    poses and points."""
+    rng = np.random.default_rng(seed)
     points, truth, pose_index, point_index, observed = _six_views(rng)
     perturbed = truth.copy()
     for T in perturbed[2:]:
@@ -38,6 +40,11 @@ def test_bundle_adjustment_recovers_perturbed_poses_and_points():
         T[:3, 3] += rng.normal(0, 0.01, 3)
     fixed = np.array([True, True, False, False, False, False])  # two fixed poses fix the monocular gauge
     problem = BundleProblem(perturbed, points + rng.normal(0, 0.01, points.shape), pose_index, point_index, observed, np.ones(len(observed)), fixed, K)
+    return problem, truth, points
+
+
+def test_bundle_adjustment_recovers_perturbed_poses_and_points():
+    problem, truth, points = _perturbed_six_views(1)
     poses, refined, chi2 = bundle_adjust(problem, evaluations=20)
     assert np.abs(poses - truth).max() < 1e-6
     assert np.abs(refined - points).max() < 1e-5
@@ -48,14 +55,7 @@ def test_bundle_adjustment_recovers_perturbed_poses_and_points():
 def test_the_sparse_solve_of_a_whole_map_gives_the_dense_solution(monkeypatch):
     """Above DENSE_POSE_LIMIT free poses the reduced system goes to SuperLU in symmetric mode:
     the same steps as the dense Cholesky, so the same result."""
-    rng = np.random.default_rng(3)
-    points, truth, pose_index, point_index, observed = _six_views(rng)
-    perturbed = truth.copy()
-    for T in perturbed[2:]:
-        T[:3, :3] = Rotation.from_rotvec(rng.normal(0, 0.005, 3)).as_matrix() @ T[:3, :3]
-        T[:3, 3] += rng.normal(0, 0.01, 3)
-    fixed = np.array([True, True, False, False, False, False])
-    problem = BundleProblem(perturbed, points + rng.normal(0, 0.01, points.shape), pose_index, point_index, observed, np.ones(len(observed)), fixed, K)
+    problem, _, _ = _perturbed_six_views(3)
     dense = bundle_adjust(problem, evaluations=3)
     monkeypatch.setattr(bundle_adjustment, "DENSE_POSE_LIMIT", 0)
     sparse = bundle_adjust(problem, evaluations=3)

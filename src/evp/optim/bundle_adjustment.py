@@ -20,13 +20,13 @@ from typing import Protocol
 import cv2
 import numpy as np
 import scipy.linalg
-import scipy.sparse.linalg
 from scipy.sparse import bsr_matrix, csr_matrix
 
 from evp.optim.reprojection import CHI2_2DOF, HUBER_DELTA, in_detected_pixels, reprojection_chi2
 from evp.optim.rotation import nearest_rotation
+from evp.optim.sparse_solve import solve_positive_definite
 
-DENSE_POSE_LIMIT = 300  # free poses above which the reduced system is solved as a sparse matrix
+DENSE_POSE_LIMIT = 300  # free poses above which the reduced system is solved as a sparse matrix (a whole map: its keyframes share points with few others; dense, 2000 keyframes would take 1.2 GB)
 
 
 class StopFlag(Protocol):
@@ -150,7 +150,7 @@ class _Linearisation:
         diagonal *= 1 + damping
         diagonal += 1e-9
         if len(U) > DENSE_POSE_LIMIT:
-            d_pose = _solve_sparse(bsr_matrix((U, np.arange(len(U)), np.arange(len(U) + 1))) - WV @ self.W.T, rhs)
+            d_pose = solve_positive_definite(bsr_matrix((U, np.arange(len(U)), np.arange(len(U) + 1))) - WV @ self.W.T, rhs)
             if d_pose is None:
                 return None
         else:
@@ -162,20 +162,6 @@ class _Linearisation:
         back = -self.g_point.ravel() - self.W.T @ d_pose
         d_point = np.einsum("nij,nj->ni", V_inv, back.reshape(-1, 3))
         return d_pose.reshape(-1, 6), d_point
-
-
-def _solve_sparse(S, rhs: np.ndarray) -> np.ndarray | None:
-    """Sparse LU of the reduced system: a whole map's keyframes share points with few others, so
-    its pose system is mostly zeros (dense, 2000 keyframes would take 1.2 GB). The system is
-    symmetric positive definite (damped): SuperLU's symmetric mode (a minimum-degree ordering of
-    S + S^T, pivots on the diagonal) factors the 300 s drone flight's 457-keyframe system in
-    121 ms against 327 ms with its default column ordering (one BLAS thread; dense Cholesky 273)."""
-    try:
-        factor = scipy.sparse.linalg.splu(S.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-        solution = factor.solve(rhs)
-    except RuntimeError:  # exactly singular
-        return None
-    return solution if np.all(np.isfinite(solution)) else None
 
 
 def _apply(R: np.ndarray, t: np.ndarray, points: np.ndarray, free: np.ndarray, d_pose: np.ndarray, d_point: np.ndarray):

@@ -6,7 +6,7 @@ similarities); each edge ``(i, j)`` holds the relative transform ``S_ij = S_iw S
 should keep. The residual of an edge is ``log(S_ij^-1 S_iw S_jw^-1)`` (rotation vector,
 translation, log scale), all weighted alike as in ORB-SLAM. Solved by Levenberg-Marquardt
 (ORB-SLAM runs g2o's, 20 iterations) with each step a direct sparse solve of the damped normal
-equations (7x7 blocks, SuperLU in symmetric mode); each edge's Jacobian is a numerical 7x14 block
+equations (7x7 blocks, `evp.optim.sparse_solve`); each edge's Jacobian is a numerical 7x14 block
 computed for all edges at once (14 vectorised evaluations, however many edges a keyframe has).
 SciPy's trust-region least squares with its iterative LSMR step took 5.7 s on the 300 s drone
 flight's loop (392 keyframes, 3530 edges), most of it in LSMR (docs/decisions.md).
@@ -15,10 +15,10 @@ flight's loop (392 keyframes, 3530 edges), most of it in LSMR (docs/decisions.md
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse.linalg
 from scipy.sparse import csr_matrix, diags
 
 from evp.geometry.sim3 import Sim3
+from evp.optim.sparse_solve import solve_positive_definite
 
 _STEP = 1e-6
 MIN_REDUCTION = 1e-10  # relative cost reduction below which the solve has converged
@@ -90,10 +90,4 @@ def optimise_pose_graph(initial: Sim3, fixed: np.ndarray, edge_i: np.ndarray, ed
 def _damped_step(H, g: np.ndarray, damping: float) -> np.ndarray | None:
     """The Levenberg-Marquardt step ``(H + damping diag(H)) dx = -g``; None when the system cannot
     be factored."""
-    diagonal = H.diagonal()
-    A = (H + diags(damping * diagonal + 1e-12)).tocsc()
-    try:
-        step = scipy.sparse.linalg.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}).solve(-g)
-    except RuntimeError:  # exactly singular
-        return None
-    return step if np.all(np.isfinite(step)) else None
+    return solve_positive_definite(H + diags(damping * H.diagonal() + 1e-12), -g)

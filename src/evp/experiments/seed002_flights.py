@@ -343,8 +343,9 @@ def _tables2_5(records: dict[str, dict]) -> tuple[list[str], list[Row]]:
         "alignment phase, the barometer for height) on EVP's SLAM. EVP fused: EVP's navigation filter",
         "(SLAM, IMU, barometer, and GPS until the alignment phase ends; GPS denied after it). Errors",
         f"after the alignment phase, at the GPS fixes above {SCORED_ABOVE_M:g} m, as the paper scores them.",
-        "EVP fused '-': the filter was not georeferenced before GPS was denied (it needs the fixes",
-        "paired with its track to spread navigation.gps_align_min_spread_m, 20 m RMS, after it starts).",
+        "EVP fused '-': the filter was not georeferenced (the fixes paired with its track, from its",
+        "start to the phase's end, spread too little: 20 m RMS, navigation.gps_align_min_spread_m, or",
+        "once GPS is gone, enough for a heading within navigation.gps_align_on_loss_max_heading_sigma_deg).",
         "'ahead' in results.json: EVP fused's mean error against GPS below the paper's 3D+baro mean",
         "for that flight.",
     ]

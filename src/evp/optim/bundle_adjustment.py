@@ -15,7 +15,6 @@ take left increments (rotation vector, translation) re-linearised at every itera
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Protocol
 
 import cv2
 import numpy as np
@@ -24,16 +23,11 @@ from scipy.sparse import bsr_matrix, csr_matrix
 
 from evp.optim.reprojection import CHI2_2DOF, HUBER_DELTA, in_detected_pixels, reprojection_chi2
 from evp.optim.rotation import nearest_rotation
+from evp.optim.levenberg_marquardt import StopFlag, levenberg_marquardt
 from evp.optim.sparse_solve import solve_positive_definite
 
+MIN_REDUCTION = 1e-6  # relative cost reduction below which a solve has converged
 DENSE_POSE_LIMIT = 300  # free poses above which the reduced system is solved as a sparse matrix (a whole map: its keyframes share points with few others; dense, 2000 keyframes would take 1.2 GB)
-
-
-class StopFlag(Protocol):
-    """What ``bundle_adjust`` polls between iterations: anything with ``is_set`` (a plain flag in the
-    solving thread, an event shared with another thread or process)."""
-
-    def is_set(self) -> bool: ...
 
 
 @dataclass
@@ -177,26 +171,16 @@ def _solve(problem: BundleProblem, active: np.ndarray, iterations: int, robust: 
     free = np.flatnonzero(~problem.fixed)
     slot = np.full(len(problem.poses), -1)
     slot[free] = np.arange(len(free))
-    R, t, points = problem.poses[:, :3, :3].copy(), problem.poses[:, :3, 3].copy(), problem.points.copy()
-    damping = 1e-4
-    current = _Linearisation(problem, active, slot, R, t, points, robust)
-    for _ in range(iterations):
-        if stop is not None and stop.is_set():
-            break
-        improved = False
-        while damping < 1e8:
-            step = current.step(damping)
-            if step is not None:
-                candidate = _apply(R, t, points, free, *step)
-                trial = _Linearisation(problem, active, slot, *candidate, robust)
-                if trial.cost < current.cost:
-                    reduction = (current.cost - trial.cost) / max(current.cost, 1e-12)
-                    (R, t, points), current, improved = candidate, trial, True
-                    damping = max(damping / 3.0, 1e-9)
-                    break
-            damping *= 4.0
-        if not improved or reduction < 1e-6:
-            break
+
+    def linearised(estimate: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], _Linearisation]:
+        return estimate, _Linearisation(problem, active, slot, *estimate, robust)
+
+    def step(current, damping: float):
+        increments = current[1].step(damping)
+        return None if increments is None else linearised(_apply(*current[0], free, *increments))
+
+    start = linearised((problem.poses[:, :3, :3].copy(), problem.poses[:, :3, 3].copy(), problem.points.copy()))
+    (R, t, points), _ = levenberg_marquardt(start, step, lambda current: current[1].cost, iterations, MIN_REDUCTION, stop)
     poses = np.repeat(np.eye(4)[None], len(R), axis=0)
     poses[:, :3, :3] = [nearest_rotation(r) for r in R]
     poses[:, :3, 3] = t

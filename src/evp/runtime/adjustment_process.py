@@ -18,7 +18,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from evp.optim.bundle_adjustment import BundleProblem, StopFlag, bundle_adjust
+from evp.optim.bundle_adjustment import BundleProblem, bundle_adjust
+from evp.optim.levenberg_marquardt import StopFlag
 from evp.slam.adjustment import InlineAdjustment
 
 if TYPE_CHECKING:

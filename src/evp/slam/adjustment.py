@@ -8,7 +8,8 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from evp.optim.bundle_adjustment import BundleProblem, StopFlag, bundle_adjust
+from evp.optim.bundle_adjustment import BundleProblem, bundle_adjust
+from evp.optim.levenberg_marquardt import StopFlag
 
 if TYPE_CHECKING:
     from evp.geometry.sim3 import Sim3

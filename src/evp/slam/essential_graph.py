@@ -14,10 +14,14 @@ flight's loop (392 keyframes, 3530 edges), most of it in LSMR (docs/decisions.md
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from functools import cached_property
+
 import numpy as np
 from scipy.sparse import csr_matrix, diags
 
 from evp.geometry.sim3 import Sim3
+from evp.optim.levenberg_marquardt import levenberg_marquardt
 from evp.optim.sparse_solve import solve_positive_definite
 
 _STEP = 1e-6
@@ -64,30 +68,26 @@ def optimise_pose_graph(initial: Sim3, fixed: np.ndarray, edge_i: np.ndarray, ed
 
     if len(free) == 0 or len(edge_i) == 0:
         return initial
-    x = np.zeros(7 * len(free))
-    r = residuals(x)
-    cost, damping = float(r @ r), 1e-4
-    for _ in range(max_iterations):
-        J = jacobian(x)
-        H, g = (J.T @ J).tocsc(), J.T @ r
-        improved = False
-        while damping < 1e8:
-            step = _damped_step(H, g, damping)
-            if step is not None:
-                r_new = residuals(x + step)
-                cost_new = float(r_new @ r_new)
-                if cost_new < cost:
-                    reduction = (cost - cost_new) / max(cost, 1e-300)
-                    x, r, cost, improved = x + step, r_new, cost_new, True
-                    damping = max(damping / 3.0, 1e-9)
-                    break
-            damping *= 4.0
-        if not improved or reduction < MIN_REDUCTION:
-            break
-    return Sim3.exp(increments(x)) @ initial
+    def estimate(x: np.ndarray) -> _Estimate:
+        return _Estimate(x, residuals(x), jacobian)
+
+    def step(current: _Estimate, damping: float) -> _Estimate | None:
+        H, g = current.normal_equations
+        dx = solve_positive_definite(H + diags(damping * H.diagonal() + 1e-12), -g)
+        return None if dx is None else estimate(current.x + dx)
+
+    solved = levenberg_marquardt(estimate(np.zeros(7 * len(free))), step, lambda current: current.cost, max_iterations, MIN_REDUCTION)
+    return Sim3.exp(increments(solved.x)) @ initial
 
 
-def _damped_step(H, g: np.ndarray, damping: float) -> np.ndarray | None:
-    """The Levenberg-Marquardt step ``(H + damping diag(H)) dx = -g``; None when the system cannot
-    be factored."""
-    return solve_positive_definite(H + diags(damping * H.diagonal() + 1e-12), -g)
+class _Estimate:
+    """The increments ``x``, their residuals, and the normal equations at them (``J^T J``,
+    ``J^T r``), built when a step is first asked of them: a trial the cost refuses never needs them."""
+
+    def __init__(self, x: np.ndarray, r: np.ndarray, jacobian: Callable[[np.ndarray], csr_matrix]):
+        self.x, self.r, self.cost, self._jacobian = x, r, float(r @ r), jacobian
+
+    @cached_property
+    def normal_equations(self) -> tuple[csr_matrix, np.ndarray]:
+        J = self._jacobian(self.x)
+        return (J.T @ J).tocsc(), J.T @ self.r

@@ -317,7 +317,7 @@ class NavigationStage:
         spread = horizontal_spread(local)
         self.alignment_progress = AlignmentProgress(len(local), spread, self.settings.gps_align_min_spread_m)
         if spread >= self.settings.gps_align_min_spread_m:
-            self._georeference(fix, local)
+            self._georeference(fix, local, spread)
 
     def _align_on_loss(self, timestamp: float) -> None:
         """GPS lost before the paired fixes spread enough: fit the heading on what they have when
@@ -330,9 +330,9 @@ class NavigationStage:
         lost = f"GPS lost at {timestamp:.3f} s (no fix since {fix.timestamp:.3f} s) with the paired fixes spread {spread:.1f} m, short of {self.settings.gps_align_min_spread_m:.0f} m"
         if heading_sigma_deg <= self.settings.gps_align_on_loss_max_heading_sigma_deg:
             self._warn(timestamp, "georeferenced_short_track", f"{lost}: heading fitted on them, 1-sigma {heading_sigma_deg:.0f} deg")
-            self._georeference(fix, local)
+            self._georeference(fix, local, spread)
             self.gps_monitor.without_fixes()
-        elif not self._told_short_track:
+        else:
             self._told_short_track = True
             self._warn(timestamp, "not_georeferenced", f"{lost}: a heading fitted on them (1-sigma {heading_sigma_deg:.0f} deg) is not worth having; not georeferenced")
 
@@ -340,10 +340,10 @@ class NavigationStage:
         accuracy = fix.horizontal_accuracy_m
         return accuracy if math.isfinite(accuracy) and accuracy > 0 else self.settings.gps_default_sigma_m
 
-    def _georeference(self, fix: GpsFix, local: np.ndarray) -> None:
-        """Fit the heading and origin to the paired fixes (``fix`` the newest) and move the
-        filter's world to ENU with their uncertainty."""
-        spread = horizontal_spread(local)
+    def _georeference(self, fix: GpsFix, local: np.ndarray, spread: float) -> None:
+        """Fit the heading and origin to the paired fixes (``fix`` the newest; ``local`` the
+        filter's positions, ``spread`` theirs) and move the filter's world to ENU with their
+        uncertainty."""
         enu = np.array([e for _, e in self._gps_pairs])
         alignment = align_to_gps(local, enu, self._fix_sigma(fix))
         residuals = (local @ alignment.R.T + alignment.t) - enu
@@ -404,7 +404,11 @@ class NavigationStage:
             events = len(self.gps_monitor.events)
             self.gps_monitor.check_outage(estimate.timestamp)
             self._tell_monitor_events(events)
-        elif self._last_paired_fix is not None and estimate.timestamp - self._last_paired_fix.timestamp > self.gps_monitor.settings.outage_s:
+        elif (
+            self._last_paired_fix is not None
+            and not self._told_short_track  # told once per loss: the pairs do not change until GPS is back
+            and estimate.timestamp - self._last_paired_fix.timestamp > self.gps_monitor.settings.outage_s
+        ):
             self._align_on_loss(estimate.timestamp)
         visual = self._visual_update(estimate) if tracked else None
         output = self.filter.output(self.T_body_cam)

@@ -21,9 +21,9 @@ import numpy as np
 import scipy.linalg
 from scipy.sparse import bsr_matrix, csr_matrix
 
+from evp.optim.levenberg_marquardt import StopFlag, levenberg_marquardt
 from evp.optim.reprojection import CHI2_2DOF, HUBER_DELTA, in_detected_pixels, reprojection_chi2
 from evp.optim.rotation import nearest_rotation
-from evp.optim.levenberg_marquardt import StopFlag, levenberg_marquardt
 from evp.optim.sparse_solve import solve_positive_definite
 
 MIN_REDUCTION = 1e-6  # relative cost reduction below which a solve has converged

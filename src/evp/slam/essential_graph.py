@@ -8,7 +8,7 @@ translation, log scale), all weighted alike as in ORB-SLAM. Solved by Levenberg-
 (ORB-SLAM runs g2o's, 20 iterations) with each step a direct sparse solve of the damped normal
 equations (7x7 blocks, `evp.optim.sparse_solve`); each edge's Jacobian is a numerical 7x14 block
 computed for all edges at once (14 vectorised evaluations, however many edges a keyframe has).
-SciPy's trust-region least squares with its iterative LSMR step took 5.7 s on the 300 s drone
+SciPy's trust-region least squares with its iterative LSMR step took 5.6 s on the 300 s drone
 flight's loop (392 keyframes, 3530 edges), most of it in LSMR (docs/decisions.md).
 """
 

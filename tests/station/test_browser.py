@@ -34,6 +34,19 @@ def write_y4m(path: Path, images: list[np.ndarray], fps: int) -> None:
             handle.write(b"FRAME\n" + cv2.cvtColor(bgr, cv2.COLOR_BGR2YUV_I420).tobytes())
 
 
+def wait_on_phone(phone, station, expression: str, timeout: float = 30_000) -> None:
+    """``phone.wait_for_function`` that, when it times out, fails with what the phone page logged
+    and the end of the station's log: a link refused (storage_full, bad_token) or a station that
+    stopped answering says so, rather than only that 30 s passed."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    try:
+        phone.wait_for_function(expression, timeout=timeout)
+    except sync_api.TimeoutError:
+        page_log = phone.inner_text("#log")
+        serve_log = (station.data.parent / f"{station.data.name}-serve.log").read_text(errors="replace")[-3000:]
+        pytest.fail(f"phone page: {expression} not true within {timeout / 1000:.0f} s\nphone log:\n{page_log}\nstation log (end):\n{serve_log}")
+
+
 @pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (scripts/test.sh installs it when it can)")
 def test_phone_page_streams_and_operator_sees_the_trajectory(tmp_path, station_data):
     sync_api = pytest.importorskip("playwright.sync_api")
@@ -69,16 +82,16 @@ def test_phone_page_streams_and_operator_sees_the_trajectory(tmp_path, station_d
         operator.wait_for_function("window.evp.pairingUrl !== undefined")
         phone = context.new_page()
         phone.goto(operator.evaluate("window.evp.pairingUrl"))  # what scanning the QR code opens
-        phone.wait_for_function("localStorage.getItem('evp.credential') !== null")
-        phone.wait_for_function("document.getElementById('link').textContent.startsWith('ready')")
+        wait_on_phone(phone, station, "localStorage.getItem('evp.credential') !== null")
+        wait_on_phone(phone, station, "document.getElementById('link').textContent.startsWith('ready')")
         phone.click("#start")  # the link opens now; the station's config (the operator's camera) comes with it
-        phone.wait_for_function("window.evpPhone.config && window.evpPhone.config.camera.width === 240")
-        phone.wait_for_function("window.evpPhone.sensing === true")
+        wait_on_phone(phone, station, "window.evpPhone.config && window.evpPhone.config.camera.width === 240")
+        wait_on_phone(phone, station, "window.evpPhone.sensing === true")
         phone.evaluate(  # a headless browser has no motion sensors: 12 readings as the phone's would come
             """() => { for (let k = 0; k < 12; k++) window.dispatchEvent(new DeviceMotionEvent("devicemotion", {
                  accelerationIncludingGravity: {x: 0, y: 0, z: 9.8}, rotationRate: {alpha: 1, beta: 2, gamma: 3}, interval: 16})); }"""
         )
-        phone.wait_for_function("window.evpPhone.poses >= 40 && window.evpPhone.gps >= 1 && window.evpPhone.imu === 12", timeout=120_000)
+        wait_on_phone(phone, station, "window.evpPhone.poses >= 40 && window.evpPhone.gps >= 1 && window.evpPhone.imu === 12", timeout=120_000)
         operator.wait_for_function(
             "(() => { const s = window.evp.selected; return s && window.evp.trajectories[s] && window.evp.trajectories[s].points.filter(p => p.state === 'OK').length >= 10; })()",
             timeout=60_000,

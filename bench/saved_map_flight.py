@@ -145,7 +145,7 @@ def main() -> None:
             settings = _settings(first)
             estimator, stage, result = _run(first, settings)
             result.final_trajectory()
-            refined = navigation_on_refined(first, settings, result.refined) if result.refined is not None and len(result.refined) >= 2 else None
+            refined = navigation_on_refined(first, settings, result.refined, live=result.estimates) if result.refined is not None and len(result.refined) >= 2 else None
             write_outputs(result, first, settings, root / "first_run", stage, refined)
             print(f"first flight: {time.perf_counter() - start:.0f} s, {stage.status}", flush=True)
         georeference = read_map_georeference(map_file)

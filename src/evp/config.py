@@ -239,6 +239,11 @@ class NavigationSettings(_Section):
     map_position_random_walk: float = Field(1e-2, ge=0, description="visual map origin drift, m/sqrt(s)")
     baro_bias_random_walk: float = Field(0.05, ge=0, description="barometer bias drift (weather, temperature), m/sqrt(s)")
     visual_position_sigma_m: float = Field(0.02, gt=0, description="visual camera position noise (1 sigma), in metres at the estimated scale")
+    visual_position_sigma_per_depth: float = Field(
+        0.005,
+        ge=0,
+        description="visual camera position noise as a share of the tracked scene's median depth, where the estimator gives it (the larger of this and visual_position_sigma_m is used): 2 cm suits a camera 1-4 m from what it sees; at 15 m over a field it made the filter refuse every visual pose within 10 s (docs/decisions.md)",
+    )
     visual_attitude_sigma_rad: float = Field(0.01, gt=0, description="visual camera attitude noise (1 sigma)")
     baro_sigma_m: float = Field(0.5, gt=0, description="barometer altitude noise (1 sigma)")
     range_sigma_m: float = Field(0.05, gt=0, description="range finder noise (1 sigma)")

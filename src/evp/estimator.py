@@ -84,12 +84,14 @@ class Estimator(ABC):
 class GivenPoses(Estimator):
     """Answers each frame with the pose a trajectory already holds at its time, and ``LOST`` where
     it holds none (``NOT_INITIALIZED`` before its first pose): the pipeline's stages run again on poses estimated before (an offline run's
-    refined trajectory, a test's or bench's truth). The images are not looked at."""
+    refined trajectory, a test's or bench's truth). The images are not looked at. ``scene_depths``
+    (one per pose, NaN where unknown) are answered as each estimate's ``scene_depth``."""
 
-    def __init__(self, timestamps: np.ndarray, T_world_cam: np.ndarray, tolerance_s: float = 1e-6):
+    def __init__(self, timestamps: np.ndarray, T_world_cam: np.ndarray, tolerance_s: float = 1e-6, scene_depths: np.ndarray | None = None):
         order = np.argsort(timestamps)
         self.timestamps = np.asarray(timestamps, float)[order]
         self.poses = np.asarray(T_world_cam, float).reshape(-1, 4, 4)[order]
+        self.depths = None if scene_depths is None else np.asarray(scene_depths, float)[order]
         self.tolerance_s = tolerance_s
 
     def feed(self, frame: Frame) -> PoseEstimate:
@@ -98,4 +100,5 @@ class GivenPoses(Estimator):
         if nearest is None or abs(self.timestamps[nearest] - frame.timestamp) > self.tolerance_s:
             started = len(self.timestamps) and frame.timestamp > self.timestamps[0]
             return PoseEstimate(frame.timestamp, np.eye(4), TrackingState.LOST if started else TrackingState.NOT_INITIALIZED)
-        return PoseEstimate(frame.timestamp, self.poses[nearest].copy(), TrackingState.OK, 100)
+        depth = None if self.depths is None or not np.isfinite(self.depths[nearest]) else float(self.depths[nearest])
+        return PoseEstimate(frame.timestamp, self.poses[nearest].copy(), TrackingState.OK, 100, scene_depth=depth)

@@ -135,6 +135,7 @@ class PoseEstimate:
     ``T_visual_cam``; ``scale_known`` says its scale's uncertainty is below the settings' bound,
     ``georeferenced`` that the world is ENU at a GPS origin, ``gps_trusted`` that GPS is being fused
     (the trust monitor finds it consistent); ``velocity`` is the stage's, in its world frame.
+    ``scene_depth`` tells how far the tracked scene is, which a pose's error grows with.
     """
 
     timestamp: float
@@ -149,6 +150,7 @@ class PoseEstimate:
     T_visual_cam: np.ndarray | None = None
     velocity: np.ndarray | None = None  # m/s in the world frame, from a navigation stage
     velocity_covariance: np.ndarray | None = None  # 3x3, (m/s)^2, world frame
+    scene_depth: float | None = None  # median depth of what the estimator tracked (its reference keyframe's points), in its own units
 
     @property
     def visual_pose(self) -> np.ndarray:

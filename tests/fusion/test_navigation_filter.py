@@ -151,6 +151,32 @@ def test_visual_poses_recover_the_map_scale_and_pose():
     assert out.covariance.shape == (6, 6) and np.all(np.linalg.eigvalsh(out.covariance) > 0)
 
 
+def test_a_far_scene_s_poses_are_weighed_by_its_depth():
+    """Poses tracked on a scene 30 m away err by decimetres (0.5 % of the depth here): told the
+    depth, the filter weighs them so and recovers the scale; held to visual_position_sigma_m
+    (2 cm) it finds them inconsistent and refuses many."""
+    depth_m, settings = 30.0, NavigationSettings(initial_yaw_sigma_rad=0.05, initial_log_scale_sigma=0.3)
+    sigma_m = settings.visual_position_sigma_per_depth * depth_m
+    assert sigma_m > 5 * settings.visual_position_sigma_m
+    trajectory = SinusoidTrajectory()
+    outcomes = {}
+    for told in (True, False):
+        rng = np.random.default_rng(3)
+        nav = NavigationFilter(trajectory.state(0.0, log_scale=np.log(3.0)), settings)  # scale 25 % off
+        statuses = []
+        for k, sample in enumerate(noisy_imu(trajectory, 20.0, settings)):
+            nav.propagate(sample)
+            if k % 10 == 0:
+                pose = visual_pose(trajectory, sample.timestamp, rng, position_sigma=sigma_m)
+                if told:
+                    pose = VisualPose(pose.timestamp, pose.T_map_cam, pose.T_body_cam, depth=depth_m / MAP_SCALE)
+                statuses.append(nav.update(pose).status)
+        outcomes[told] = (np.mean([status is UpdateStatus.GATED for status in statuses]), nav.state.scale)
+    gated, scale = outcomes[True]
+    assert gated < 0.005 and abs(scale / MAP_SCALE - 1.0) < 0.02
+    assert outcomes[False][0] > 0.05
+
+
 def test_a_new_visual_map_is_a_jump_not_motion():
     """After a relocalisation into a map moved by 3 m and 90 degrees, the poses are accepted
     once the filter is told, and the body estimate does not jump."""

@@ -58,11 +58,18 @@ def _finite(*values) -> bool:
 @dataclass(frozen=True)
 class VisualPose:
     """A SLAM/VO camera pose in its own map (arbitrary frame and scale): ``T_map_cam`` 4x4;
-    ``T_body_cam`` is the camera-IMU extrinsic (camera in the IMU frame, metres)."""
+    ``T_body_cam`` is the camera-IMU extrinsic (camera in the IMU frame, metres); ``depth`` the
+    median depth of the scene it was tracked on, in map units (NaN: not known).
+
+    Its position noise is the larger of ``visual_position_sigma_m`` and
+    ``visual_position_sigma_per_depth`` times that depth: a pose fixed on points d away moves with
+    their errors, which grow with d (a pixel is d / f wide there, and triangulated depths are
+    worse), so one sigma in metres fits a camera 1 m above a floor or 100 m above a field, never both."""
 
     timestamp: float
     T_map_cam: np.ndarray
     T_body_cam: np.ndarray
+    depth: float = float("nan")
     kind = "visual"
 
     def linearise(self, x: NavState, gyro: np.ndarray, s: NavigationSettings) -> Linearisation | Refusal:
@@ -83,7 +90,10 @@ class VisualPose:
         H[3:6, ATTITUDE] = R_bc.T
         H[3:6, MAP_ATTITUDE] = -R_bc.T @ x.R_world_body.T
         residual = np.concatenate([self.T_map_cam[:3, 3] - predicted_position, so3_log(R_map_cam.T @ self.T_map_cam[:3, :3])])
-        noise = np.diag(np.repeat([(s.visual_position_sigma_m / scale) ** 2, s.visual_attitude_sigma_rad**2], 3))
+        position_sigma = s.visual_position_sigma_m / scale
+        if math.isfinite(self.depth):
+            position_sigma = max(position_sigma, s.visual_position_sigma_per_depth * self.depth)
+        noise = np.diag(np.repeat([position_sigma**2, s.visual_attitude_sigma_rad**2], 3))
         return Linearisation(residual, H, noise)
 
 

@@ -420,7 +420,8 @@ class NavigationStage:
         """The tracked pose fused; once the gate has refused every pose for
         ``visual_jump_reset_s``, the visual map jumped without the estimator saying so (a loop
         correction): the map's pose is re-anchored at this one, its scale kept."""
-        pose = VisualPose(estimate.timestamp, estimate.T_world_cam, self.T_body_cam)
+        depth = math.nan if estimate.scene_depth is None else estimate.scene_depth
+        pose = VisualPose(estimate.timestamp, estimate.T_world_cam, self.T_body_cam, depth)
         innovation = self._update(pose)
         if innovation.status is not UpdateStatus.GATED:
             self._gated_since = None

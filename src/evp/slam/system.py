@@ -726,7 +726,8 @@ class SlamSystem(Estimator):
         if state == TrackingState.RELOCALIZED:
             self.state = TrackingState.OK
         quality = int(min(100, 100 * self._last_inliers / max(1, self.extractor.settings.n_features // 4)))
-        return PoseEstimate(frame.timestamp, se3_inverse(T_cw), state, quality)
+        depth = self.map.median_depth(reference) if reference is not None else None
+        return PoseEstimate(frame.timestamp, se3_inverse(T_cw), state, quality, scene_depth=depth)
 
     def _keyframe_pose(self, kf_id: int) -> np.ndarray | None:
         """``T_cw`` of a keyframe, through the parent chain of culled ones."""

@@ -118,6 +118,27 @@ def test_an_unannounced_jump_of_the_map_is_re_anchored_once_the_gate_has_refused
     assert _se3_error(trajectory, result) < 0.01  # the 3 m never entered the body's track
 
 
+def test_a_filter_that_keeps_losing_the_visual_poses_restarts_instead_of_re_anchoring_forever():
+    """Poses that slide away from the IMU's motion at 4 m/s (as a lost filter's velocity makes
+    them look) are refused, re-anchored and refused again: after RESTART_AFTER_JUMPS re-anchors
+    with hardly a pose accepted between them the filter is dropped with a warning and the stage
+    waits for a new start, rather than coasting on wherever its velocity takes it."""
+    trajectory = SinusoidTrajectory()
+    duration = 8.0
+    times = np.arange(0.0, duration, 1.0 / FRAME_RATE)
+    slide = np.array([4.0, 0.0, 0.0])
+    estimates = [PoseEstimate(float(t), map_pose(trajectory, t, t_world_map=T_WORLD_MAP + slide * max(0.0, t - 2.5)), TrackingState.OK) for t in times]
+    settings = EXACT_IMU.model_copy(update={"visual_jump_reset_s": 0.5})
+    stage, result = _run(estimates, trajectory.imu(imu_times(duration)), settings=settings)
+    codes = [n.code for n in stage.notices if n.level == "warning"]
+    assert "navigation_restarted" in codes, codes
+    restarted = next(n for n in stage.notices if n.code == "navigation_restarted")
+    assert codes[: codes.index("navigation_restarted")] == ["visual_jump"] * (navigation_stage.RESTART_AFTER_JUMPS - 1)
+    after = [e for e in result.estimates if restarted.timestamp < e.timestamp < restarted.timestamp + 0.5]
+    assert after and not any(e.metric for e in after)  # the poses pass as the estimator's until a new start
+    assert stage.world_changes >= 2  # the start, the restart (each a jump of the output frame)
+
+
 def test_bad_imu_is_dropped_with_a_warning_and_the_run_goes_on():
     trajectory = SinusoidTrajectory()
     times = np.arange(0.0, DURATION_S, 1.0 / FRAME_RATE)

@@ -15,7 +15,10 @@ metric camera pose, its 6x6 covariance and the flags (the estimator's pose kept 
 motion: a relocalisation keeps the map's scale, a new map (SLAM restarted) forgets it. A jump the
 estimator does not count (a loop correction) shows as visual poses the filter's gate refuses: once
 it has refused all of them for ``visual_jump_reset_s``, the map's pose is re-anchored as after a
-relocalisation (``visual_jump`` warning).
+relocalisation (``visual_jump`` warning). Re-anchors that follow one another with hardly a pose
+accepted between them are not the map jumping but the filter lost (its velocity or attitude
+wrong, which a re-anchor keeps): unless GPS holds it, the filter is dropped and starts again from
+the visual-inertial initialisation (``navigation_restarted`` warning).
 
 GPS (``use_gps``): the first fix with a lock is the take-off point, the origin of the ENU frame
 its fixes are converted to. The filter starts from vision and the IMU only (GPS alone does not
@@ -97,6 +100,13 @@ NOISE_POSES = 60
 # poses' velocity is the one the next visual updates measure.
 START_VELOCITY_SPAN_S = 0.5
 START_VELOCITY_POSES = 3
+# Re-anchors of the visual map in a row, each followed by fewer than RESTART_ACCEPTED_POSES
+# accepted poses, that mean the filter is lost rather than the map moved: a loop's correction is
+# one re-anchor and then poses accepted; a lost filter's velocity keeps the next ones refused (the
+# rendered 150 s square flight re-anchored every 1.07 s for two minutes, its altitude falling to
+# -94 km through a barometer its gate refused too).
+RESTART_AFTER_JUMPS = 3
+RESTART_ACCEPTED_POSES = 5
 # IMU samples kept while waiting to relocalise in a saved map: its start needs the one at or before
 # the relocalised frame, which a frame's telemetry (up to its stamp) always brings in (1 s at 200 Hz).
 SAVED_MAP_IMU_KEPT = 200
@@ -206,6 +216,8 @@ class NavigationStage:
         self.alignment_progress: AlignmentProgress | None = None  # None until a fix is paired with the running filter
         self.last_tracking_state = TrackingState.NOT_INITIALIZED
         self._gated_since: float | None = None  # the first of the visual poses the gate has refused in a row
+        self._accepted_since_jump = 0  # visual poses accepted since the last re-anchor
+        self._jumps_in_a_row = 0  # re-anchors each followed by fewer than RESTART_ACCEPTED_POSES accepted poses
         self.world_changes = 0  # jumps of the output frame: the filter's start (map units to metres) and the turn to ENU
         self._ahead: tuple[NavState, NavState, ImuSample] | None = None  # (filter state, it carried ahead, last sample): predict's cache
         self.map_georeference = map_georeference  # the saved map's, until the filter starts from it (or SLAM leaves the map)
@@ -411,6 +423,8 @@ class NavigationStage:
         ):
             self._align_on_loss(estimate.timestamp)
         visual = self._visual_update(estimate) if tracked else None
+        if self.filter is None:  # restarted: it had lost the visual map
+            return estimate
         output = self.filter.output(self.T_body_cam)
         self.records.append(NavigationRecord(output, visual))
         self.last_tracking_state = estimate.tracking_state
@@ -425,16 +439,42 @@ class NavigationStage:
         innovation = self._update(pose)
         if innovation.status is not UpdateStatus.GATED:
             self._gated_since = None
+            self._accepted_since_jump += innovation.accepted
             return innovation
         if self._gated_since is None:
             self._gated_since = estimate.timestamp
         if estimate.timestamp - self._gated_since < self.settings.visual_jump_reset_s:
             return innovation
         self._gated_since = None
+        self._jumps_in_a_row = self._jumps_in_a_row + 1 if self._accepted_since_jump < RESTART_ACCEPTED_POSES else 1
+        self._accepted_since_jump = 0
+        if self._jumps_in_a_row >= RESTART_AFTER_JUMPS and not self.gps_trusted:
+            self._restart(estimate.timestamp)
+            return innovation
         self.filter.reset_visual_map(estimate.timestamp, keep_scale=True)
         text = f"visual poses refused since {estimate.timestamp - self.settings.visual_jump_reset_s:.3f} s: the visual map jumped; its pose re-anchored at {estimate.timestamp:.3f} s"
         self._warn(estimate.timestamp, "visual_jump", text)
         return self._update(pose)
+
+    def _restart(self, timestamp: float) -> None:
+        """Drop a filter that lost the visual map (see the module docstring) and wait for the
+        visual-inertial initialisation again, as at the start; the take-off point stays, the
+        world (and any georeference) is made anew, GPS is judged afresh by a new monitor."""
+        text = (
+            f"visual poses refused again and again until {timestamp:.3f} s ({self._jumps_in_a_row} re-anchors, "
+            f"fewer than {RESTART_ACCEPTED_POSES} poses accepted after each): the filter lost the visual map; it starts again"
+        )
+        self._warn(timestamp, "navigation_restarted", text)
+        self.filter, self.alignment, self.initialised_at, self.world_alignment = None, None, None, None
+        self.status = f"scale not yet observable: the filter restarted at {timestamp:.3f} s"
+        self._imu, self._wheel, self._keyframes, self._baro = [], [], [], []
+        self._recent.clear()
+        self._map_start, self._map_start_height, self._ground_height_m = None, math.nan, None
+        self.gps_monitor = GpsMonitor(self.gps_monitor.settings)
+        self._gps_pairs, self._last_paired_fix, self._told_short_track = [], None, False
+        self._travelled_m, self._last_fix_position, self.alignment_progress = 0.0, None, None
+        self._gated_since, self._ahead, self._accepted_since_jump, self._jumps_in_a_row = None, None, 0, 0
+        self.world_changes += 1
 
     def _fused_fields(self, output: NavigationOutput) -> dict:
         """What a fused estimate takes from the filter besides its pose."""

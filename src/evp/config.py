@@ -113,6 +113,11 @@ class SlamSettings(_Section):
     )
     keyframe_max_frames: int = Field(30, ge=1, description="a keyframe at least this often (frames) when tracking is weak")
     keyframe_ref_ratio: float = Field(0.9, gt=0, lt=1, description="a keyframe when tracked points fall below this share of the reference keyframe's")
+    keyframe_depth_change: float = Field(
+        0.2,
+        gt=0,
+        description="a keyframe also when the tracked points' median depth differs from the reference keyframe's by this share: moving along the optical axis (a down-looking camera climbing, a car driving on) keeps the reference's points in view, shrinking or spreading over the image, so the tracked share never falls; the rendered square's climb from 7 to 12 m took no keyframe for 6 s and drifted 4 m",
+    )
     keyframe_min_interval_s: float = Field(
         0.08,
         ge=0,

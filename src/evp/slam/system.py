@@ -432,16 +432,15 @@ class SlamSystem(Estimator):
         self._last_inliers = inliers
         self._budget_features(inliers, len(features))
         self._last = _TrackedFrame(timestamp, features, T_cw, matched.copy())
-        if self._need_keyframe(inliers, timestamp, self._depth_changed(T_cw, matched)):
+        if self._need_keyframe(inliers, timestamp, T_cw, matched):
             self._insert_keyframe(timestamp, features, T_cw, matched)
         return T_cw
 
-    def _depth_changed(self, T_cw: np.ndarray, matched: np.ndarray) -> bool:
+    def _depth_changed(self, T_cw: np.ndarray, matched: np.ndarray, reference: KeyFrame) -> bool:
         """Whether the tracked points' median depth differs from the reference keyframe's by more
         than ``slam.keyframe_depth_change`` (relative): the camera moved along its axis."""
-        reference = self.map.keyframes.get(self._reference_kf)
         rows = np.flatnonzero(matched >= 0)
-        if reference is None or len(rows) == 0:
+        if len(rows) == 0:
             return False
         positions, _ = self._map_point_arrays(matched[rows])
         depth = float(np.median(positions @ T_cw[2, :3] + T_cw[2, 3]))
@@ -622,7 +621,7 @@ class SlamSystem(Estimator):
 
     # --- keyframes --------------------------------------------------------------------------
 
-    def _need_keyframe(self, inliers: int, timestamp: float, depth_changed: bool = False) -> bool:
+    def _need_keyframe(self, inliers: int, timestamp: float, T_cw: np.ndarray, matched: np.ndarray) -> bool:
         s = self.settings
         n_kfs = len(self.map.keyframes)
         since_kf = self._frame_count - self._last_kf_frame
@@ -639,8 +638,11 @@ class SlamSystem(Estimator):
         idle = mapper_free and timestamp - self._last_kf_time >= s.keyframe_min_interval_s
         weak = inliers < 0.5 * ref_matches  # the map is slipping away (fast forward motion)
         c1 = since_kf >= s.keyframe_max_frames or idle or weak
-        c2 = (inliers < s.keyframe_ref_ratio * ref_matches or depth_changed) and inliers > 15
-        if not (c1 and c2):
+        if not c1:
+            return False
+        # ORB-SLAM's share rule, or the camera moved along its axis (asked last: its median is not free)
+        c2 = inliers > 15 and (inliers < s.keyframe_ref_ratio * ref_matches or (reference is not None and self._depth_changed(T_cw, matched, reference)))
+        if not c2:
             return False
         if not mapper_free:
             self.mapping.interrupt()  # ORB-SLAM's InterruptBA: the mapper comes free for a next frame

@@ -187,13 +187,28 @@ class NavigationStage:
         self.T_body_cam = np.asarray(T_body_cam, float)
         self._reset_counter = reset_counter
         self._last_reset_count = reset_counter()
-        self.filter: NavigationFilter | None = None
-        self.alignment: InertialAlignment | None = None  # the initialisation that started the filter
-        self.initialised_at: float | None = None
         self.status = "scale not yet observable: no tracked pose yet"
         self.notices: list[Notice] = []
         self.records: list[NavigationRecord] = []
         self.sensors_used: set[str] = set()
+        self._last_imu_stamp = -math.inf
+        self.enu_frame: EnuFrame | None = None  # the take-off point: the first GPS fix with a lock
+        self.gps_records: list[GpsRecord] = []
+        self._gps_locked = True  # False from a fix without lock until one with it (one warning per loss)
+        self.last_tracking_state = TrackingState.NOT_INITIALIZED
+        self.world_changes = 0  # jumps of the output frame: the filter's start (map units to metres) and the turn to ENU
+        self._before_start(GpsMonitor(monitor_settings or MonitorSettings()))
+        self.map_georeference = map_georeference  # the saved map's, until the filter starts from it (or SLAM leaves the map)
+        if map_georeference is not None:
+            self.enu_frame = EnuFrame(*map_georeference.origin)
+            self.status = "waiting to relocalise in the saved map (georeferenced)"
+
+    def _before_start(self, gps_monitor: GpsMonitor) -> None:
+        """The state of a stage whose filter has not started: at construction, and again when a
+        lost filter is dropped (:meth:`_restart`)."""
+        self.filter: NavigationFilter | None = None
+        self.alignment: InertialAlignment | None = None  # the initialisation that started the filter
+        self.initialised_at: float | None = None
         self._imu: list[ImuSample] = []  # before the filter starts: the samples the initialisation needs
         self._wheel: list[WheelOdometry] = []  # before the filter starts: the wheel records, for the wheel start
         self._keyframes: list[tuple[float, np.ndarray]] = []
@@ -201,29 +216,19 @@ class NavigationStage:
         self._baro: list[tuple[float, float]] = []  # before the filter starts: heights to check the initialisation's scale
         self._map_start: tuple[float, np.ndarray] | None = None  # before the filter starts: the map's first keyframe (time, T_map_cam)
         self._map_start_height = math.nan  # the barometer's height there, once measured (NaN: not yet, or no barometer)
-        self._last_imu_stamp = -math.inf
         self._ground_height_m: float | None = None  # the range finder's ground, in world z, from its first reading
-        self.enu_frame: EnuFrame | None = None  # the take-off point: the first GPS fix with a lock
         self.world_alignment: WorldAlignment | None = None  # how the filter's world became ENU
-        self.gps_monitor = GpsMonitor(monitor_settings or MonitorSettings())
-        self.gps_records: list[GpsRecord] = []
+        self.gps_monitor = gps_monitor
         self._gps_pairs: list[tuple[np.ndarray, np.ndarray]] = []  # (filter position, GPS ENU) before the heading is known
         self._last_paired_fix: GpsFix | None = None  # the newest of them: GPS lost while aligning is told by its age
         self._told_short_track = False  # GPS lost while aligning on too short a track: warned once per loss
-        self._gps_locked = True  # False from a fix without lock until one with it (one warning per loss)
         self._travelled_m = 0.0
         self._last_fix_position: np.ndarray | None = None
         self.alignment_progress: AlignmentProgress | None = None  # None until a fix is paired with the running filter
-        self.last_tracking_state = TrackingState.NOT_INITIALIZED
         self._gated_since: float | None = None  # the first of the visual poses the gate has refused in a row
         self._accepted_since_jump = 0  # visual poses accepted since the last re-anchor
         self._jumps_in_a_row = 0  # re-anchors each followed by fewer than RESTART_ACCEPTED_POSES accepted poses
-        self.world_changes = 0  # jumps of the output frame: the filter's start (map units to metres) and the turn to ENU
         self._ahead: tuple[NavState, NavState, ImuSample] | None = None  # (filter state, it carried ahead, last sample): predict's cache
-        self.map_georeference = map_georeference  # the saved map's, until the filter starts from it (or SLAM leaves the map)
-        if map_georeference is not None:
-            self.enu_frame = EnuFrame(*map_georeference.origin)
-            self.status = "waiting to relocalise in the saved map (georeferenced)"
 
     @property
     def warnings(self) -> list[str]:
@@ -465,15 +470,8 @@ class NavigationStage:
             f"fewer than {RESTART_ACCEPTED_POSES} poses accepted after each): the filter lost the visual map; it starts again"
         )
         self._warn(timestamp, "navigation_restarted", text)
-        self.filter, self.alignment, self.initialised_at, self.world_alignment = None, None, None, None
+        self._before_start(GpsMonitor(self.gps_monitor.settings))
         self.status = f"scale not yet observable: the filter restarted at {timestamp:.3f} s"
-        self._imu, self._wheel, self._keyframes, self._baro = [], [], [], []
-        self._recent.clear()
-        self._map_start, self._map_start_height, self._ground_height_m = None, math.nan, None
-        self.gps_monitor = GpsMonitor(self.gps_monitor.settings)
-        self._gps_pairs, self._last_paired_fix, self._told_short_track = [], None, False
-        self._travelled_m, self._last_fix_position, self.alignment_progress = 0.0, None, None
-        self._gated_since, self._ahead, self._accepted_since_jump, self._jumps_in_a_row = None, None, 0, 0
         self.world_changes += 1
 
     def _fused_fields(self, output: NavigationOutput) -> dict:

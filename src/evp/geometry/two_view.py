@@ -71,6 +71,25 @@ class TwoViewResult:
     parallax_deg: float
 
 
+@dataclass
+class TwoViewCandidate:
+    """The unambiguous motion between two views, before a start decides whether its parallax is
+    enough: ``parallax_deg`` is the 51st-largest parallax of the points in front of both views
+    (ORB-SLAM's measure), ``wide`` how many have a new point's parallax (~1.1 degrees), the points
+    that fix the map's shape."""
+
+    T21: np.ndarray  # unit baseline
+    points: np.ndarray
+    good: np.ndarray
+    cos: np.ndarray  # cosine of each point's parallax angle
+    model: str
+    parallax_deg: float
+
+    @property
+    def wide(self) -> int:
+        return int((self.good & (self.cos < NEW_POINT_PARALLAX_COS)).sum())
+
+
 def _homography_score(H21: np.ndarray, p1: np.ndarray, p2: np.ndarray, sigma: float) -> tuple[float, np.ndarray]:
     """ORB-SLAM's score: sum over both transfer directions of (threshold - chi2) where inlying."""
     H12 = np.linalg.inv(H21)
@@ -107,13 +126,12 @@ def _best_motion(
     x2: np.ndarray,
     inlier: np.ndarray,
     focal: float,
-    min_parallax_deg: float,
     min_triangulated: int,
     ambiguity_ratio: float,
     model: str,
-) -> TwoViewResult | None:
-    """The (R, t) candidate that puts the most inliers in front of both cameras — if it is
-    unambiguous (the runner-up reconstructs clearly fewer) and has parallax enough."""
+) -> TwoViewCandidate | None:
+    """The (R, t) candidate that puts the most inliers in front of both cameras, if it is
+    unambiguous (the runner-up reconstructs clearly fewer)."""
     T1 = np.eye(4)
     results = []
     for R, t in candidates:
@@ -123,21 +141,29 @@ def _best_motion(
         good, cos = check_points(points, T1, T2, x1, x2, focal, 4.0, 4.0, min_parallax_cos=1.0)
         good &= inlier
         parallax = float(np.degrees(np.arccos(np.clip(np.sort(cos[good])[min(50, good.sum() - 1)], -1, 1)))) if good.sum() else 0.0
-        results.append((int(good.sum()), parallax, T2, points, good, cos))
-    results.sort(key=lambda r: -r[0])
-    n_good, parallax, T2, points, good, cos = results[0]
-    second = results[1][0] if len(results) > 1 else 0
-    if n_good < max(min_triangulated, int(0.9 * inlier.sum())) or second > ambiguity_ratio * n_good or parallax < min_parallax_deg:
+        results.append(TwoViewCandidate(T2, points, good, cos, model, parallax))
+    results.sort(key=lambda r: -r.good.sum())
+    best = results[0]
+    second = results[1].good.sum() if len(results) > 1 else 0
+    if best.good.sum() < max(min_triangulated, int(0.9 * inlier.sum())) or second > ambiguity_ratio * best.good.sum():
+        return None
+    return best
+
+
+def complete_two_view(candidate: TwoViewCandidate, x1: np.ndarray, x2: np.ndarray, focal: float, min_parallax_deg: float, min_triangulated: int) -> TwoViewResult | None:
+    """The initial map from a candidate with parallax enough, or None (wait for a later frame)."""
+    if candidate.parallax_deg < min_parallax_deg:
         return None
     # Points are kept down to ORB-SLAM's initial parallax limit (its CheckRT, on the RANSAC model):
     # at first they are all tracking has; lower-parallax points are directions, not positions.
     # Enough of them must have ORB-SLAM's new-point parallax, or initialisation waits (the mapper's
     # own limit, slam.new_point_min_parallax_deg, is 2: a start at 3 degrees has those points anyway).
-    if (good & (cos < NEW_POINT_PARALLAX_COS)).sum() < min_triangulated:
+    if candidate.wide < min_triangulated:
         return None
-    good &= check_points(points, T1, T2, x1, x2, focal, 4.0, 4.0, INITIAL_POINT_PARALLAX_COS)[0]
-    T2, points[good] = _refine(T2, points[good], x1[good], x2[good], focal)
-    return TwoViewResult(T2, points, good, model, parallax)
+    T1, points = np.eye(4), candidate.points.copy()
+    good = candidate.good & check_points(points, T1, candidate.T21, x1, x2, focal, 4.0, 4.0, INITIAL_POINT_PARALLAX_COS)[0]
+    T2, points[good] = _refine(candidate.T21, points[good], x1[good], x2[good], focal)
+    return TwoViewResult(T2, points, good, candidate.model, candidate.parallax_deg)
 
 
 def _refine(T2: np.ndarray, points: np.ndarray, x1: np.ndarray, x2: np.ndarray, focal: float) -> tuple[np.ndarray, np.ndarray]:
@@ -162,23 +188,21 @@ def _refine(T2: np.ndarray, points: np.ndarray, x1: np.ndarray, x2: np.ndarray, 
     return T, refined * scale
 
 
-def initial_two_view(
+def two_view_candidate(
     x1: np.ndarray,
     x2: np.ndarray,
     focal: float,
-    min_parallax_deg: float = 1.0,
     min_triangulated: int = 50,
     homography_ratio: float = 0.40,
     sigma_px: float = 1.0,
     parallel: Callable[..., list] | None = None,
-) -> TwoViewResult | None:
-    """Monocular initialisation from matched normalised coordinates (ORB-SLAM's Initializer).
+) -> TwoViewCandidate | None:
+    """The motion between two views from matched normalised coordinates (ORB-SLAM's Initializer).
 
     A homography and a fundamental matrix are estimated with RANSAC (at once when ``parallel``,
     which runs the callables it is given together and returns their results, is given) and scored;
     ``RH = S_H / (S_H + S_F) > homography_ratio`` selects the homography (planar or low-parallax
-    scenes), else the fundamental matrix. The motion is accepted only if unambiguous; ``None``
-    means "try again with a later frame" — never a doubtful map.
+    scenes), else the fundamental matrix. ``None`` when the motion is ambiguous.
     """
     if len(x1) < min_triangulated:
         return None
@@ -199,10 +223,26 @@ def initial_two_view(
     if score_h / (score_h + score_f) > homography_ratio:
         _, rotations, translations, _ = cv2.decomposeHomographyMat(H, np.diag([focal, focal, 1.0]))
         candidates = list(zip(rotations, translations, strict=True))
-        return _best_motion(candidates, x1, x2, inlier_h, focal, min_parallax_deg, min_triangulated, 0.75, "homography")
+        return _best_motion(candidates, x1, x2, inlier_h, focal, min_triangulated, 0.75, "homography")
     E = F[:3].copy()  # p = focal * x, so E = diag(f,f,1) F diag(f,f,1)
     K = np.diag([focal, focal, 1.0])
     E = K.T @ E @ K
     R1, R2, t = cv2.decomposeEssentialMat(E)
     candidates = [(R1, t), (R1, -t), (R2, t), (R2, -t)]
-    return _best_motion(candidates, x1, x2, inlier_f, focal, min_parallax_deg, min_triangulated, 0.7, "fundamental")
+    return _best_motion(candidates, x1, x2, inlier_f, focal, min_triangulated, 0.7, "fundamental")
+
+
+def initial_two_view(
+    x1: np.ndarray,
+    x2: np.ndarray,
+    focal: float,
+    min_parallax_deg: float = 1.0,
+    min_triangulated: int = 50,
+    homography_ratio: float = 0.40,
+    sigma_px: float = 1.0,
+    parallel: Callable[..., list] | None = None,
+) -> TwoViewResult | None:
+    """Monocular initialisation: the unambiguous motion with parallax enough and its map;
+    ``None`` means "try again with a later frame", never a doubtful map."""
+    candidate = two_view_candidate(x1, x2, focal, min_triangulated, homography_ratio, sigma_px, parallel)
+    return None if candidate is None else complete_two_view(candidate, x1, x2, focal, min_parallax_deg, min_triangulated)

@@ -305,6 +305,10 @@ class NavigationSettings(_Section):
         gt=0,
         description="GPS lost (no fix for gps_monitor.outage_s) before the paired fixes spread gps_align_min_spread_m: the heading is fitted on what they have if its 1-sigma (a fix's error over their spread) is below this, with that uncertainty in the covariance (a climb jammed before the cruise: better a heading to +-15 deg than none); else the world stays the map's, not georeferenced",
     )
+    hold_map_on_gps_loss: bool = Field(
+        True,
+        description="when GPS stops being trusted (spoofing alarm, outage), fit the visual map's scale and pose to the GPS fixes of the trusted phase and hold the scale and attitude there until GPS is trusted again (evp.fusion.gps_map_fit; seed 002's 15 flights: docs/decisions.md)",
+    )
     use_wheels: bool = Field(
         True,
         description="fuse the wheels' forward speed (with the non-holonomic constraint) and yaw rate when the dataset has them, and start from the wheel odometry's scale while the visual-inertial one is not observable",

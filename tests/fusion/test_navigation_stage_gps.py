@@ -8,7 +8,7 @@ from evp.fusion.geodesy import EnuFrame
 from evp.fusion.gps_monitor import GpsTrust
 from evp.types import GpsFix, PoseEstimate, TrackingState
 from tests.fusion.inertial_trajectory import SinusoidTrajectory, imu_times
-from tests.fusion.test_navigation_stage import FRAME_RATE, _run, map_pose
+from tests.fusion.test_navigation_stage import FRAME_RATE, MAP_SCALE, _run, map_pose
 
 ORIGIN = EnuFrame(43.7238, 10.3966, 4.0)  # the truth's world is ENU here
 DURATION_S = 25.0
@@ -127,3 +127,21 @@ def test_gps_lost_before_the_heading_fit_fits_it_on_the_track_it_has_when_that_i
     stage, result = _run_with_gps(fixes, strict)
     assert stage.world_alignment is None and not any(e.georeferenced for e in result.estimates)
     assert [n.code for n in stage.notices if n.level == "warning"] == ["not_georeferenced"]
+
+
+def test_gps_lost_holds_the_map_fitted_to_the_trusted_fixes_until_gps_is_trusted_again():
+    """The jamming gap of the test above: at the loss the visual map's scale and pose are fitted to
+    the fixes so far and held (no update moves the scale), released once GPS is trusted again."""
+    trajectory = SinusoidTrajectory()
+    stage, result = _run_with_gps(_fixes(trajectory, outages=[(10.0, 14.5)]))
+    codes = [(n.code, round(n.timestamp, 2)) for n in stage.notices if n.code.startswith("map")]
+    assert [c for c, _ in codes] == ["map_held", "map_released"]
+    held, released = codes[0][1], codes[1][1]
+    assert 11.9 <= held <= 12.1  # gps_monitor.outage_s after the last fix
+    during = [r.output.scale for r in stage.records if held < r.output.timestamp < released]
+    assert len(during) > 100 and max(during) == min(during)
+    fitted = next(n.text for n in stage.notices if n.code == "map_held")
+    assert "fitted to" in fitted and "held until GPS is trusted again" in fitted
+    assert abs(during[0] / MAP_SCALE - 1) < 0.01
+    stage, _ = _run_with_gps(_fixes(trajectory, outages=[(10.0, 14.5)]), SETTINGS.model_copy(update={"hold_map_on_gps_loss": False}))
+    assert not [n for n in stage.notices if n.code.startswith("map")]

@@ -20,6 +20,11 @@ told with :meth:`NavigationFilter.reset_visual_map`: the map-to-world pose (and,
 its scale) is forgotten, the next visual pose re-anchors it (nominal set so that pose agrees with
 the current body estimate, covariance reset to the prior, then a normal update restores its
 correlation with the body pose), so the jump never enters the body state as motion.
+
+The map's pose and scale can be set from outside and held (:meth:`NavigationFilter.hold_map`: the
+fit of the visual map to GPS when GPS is lost): held states are Schmidt-Kalman "consider"
+states, their uncertainty kept in the covariance (and so in every other state's) but no update
+moving them, until :meth:`NavigationFilter.release_map` or a jump of the visual map.
 """
 
 from __future__ import annotations
@@ -49,6 +54,7 @@ from evp.fusion.nav_state import (
     VELOCITY,
     NavState,
     skew3,
+    so3_exp,
 )
 from evp.fusion.strapdown import IMU_DIM, ImuNoise, imu_vectors, strapdown_step
 from evp.types import ImuSample
@@ -142,6 +148,7 @@ class NavigationFilter:
         self._noise_per_second[MAP_POSITION] = s.map_position_random_walk**2
         self._noise_per_second[BARO_BIAS] = s.baro_bias_random_walk**2
         self._history: list[_Node] = []
+        self._held = np.zeros(ERROR_DIM, bool)  # consider states: in the covariance, never updated
 
     # --- state ---------------------------------------------------------------------------------
 
@@ -280,10 +287,47 @@ class NavigationFilter:
             return False
         node = self._history[index]
         reset = VisualMapReset(timestamp, keep_scale)
+        self._held[MAP_POSE] = False  # the map's pose is unknown again: the next pose re-anchors it
+        if not keep_scale:
+            self._held[LOG_SCALE] = False
         node.state, node.covariance = self._forget_map(node.state, node.covariance, reset)
         node.events.append(reset)
         self._replay(index)
         return True
+
+    def hold_map(self, log_scale: float, R_world_map: np.ndarray, t_world_map: np.ndarray, covariance: np.ndarray) -> None:
+        """Set the visual map's scale and pose in the world (``covariance``: 7 x 7 over the log
+        scale, the map attitude's world-frame error and its translation) in every state of the
+        history, uncorrelated with the rest, and hold the scale and attitude there: no update
+        moves them (the translation stays free) until :meth:`release_map` or a jump of the map.
+        The body moves with the map, keeping where the map has it: its position by the change of
+        the map's placement, its velocity and heading by the change of the map's heading (the
+        tilt stays the IMU's: gravity fixes it better than a map fitted to GPS)."""
+        states = np.r_[LOG_SCALE, MAP_ATTITUDE, MAP_POSITION]
+        R_new, t_new, s_new = np.array(R_world_map, float), np.array(t_world_map, float), math.exp(log_scale)
+        for node in self._history:
+            x = node.state
+            if x.map_anchored:  # else there is no placement to carry the body by (the next pose anchors the map)
+                R_change = R_new @ x.R_world_map.T
+                heading = so3_exp(np.array([0.0, 0.0, math.atan2(R_change[1, 0], R_change[0, 0])]))
+                in_map = x.R_world_map.T @ (x.position - x.t_world_map) / x.scale
+                x = replace(x, position=s_new * R_new @ in_map + t_new, velocity=heading @ x.velocity, R_world_body=heading @ x.R_world_body)
+            node.state = replace(x, log_scale=float(log_scale), R_world_map=R_new, t_world_map=t_new)
+            P = node.covariance.copy()
+            P[states, :] = 0.0
+            P[:, states] = 0.0
+            P[np.ix_(states, states)] = covariance
+            node.covariance = P
+        self._held[:] = False
+        self._held[np.r_[LOG_SCALE, MAP_ATTITUDE]] = True
+
+    def release_map(self) -> None:
+        """Updates move the map's scale and attitude again."""
+        self._held[:] = False
+
+    @property
+    def map_held(self) -> bool:
+        return bool(self._held.any())
 
     def move_world(
         self,
@@ -393,6 +437,7 @@ class NavigationFilter:
         if not innovation.accepted:
             return innovation, node.state, node.covariance
         K = PHt @ S_inv
+        K[self._held] = 0.0  # consider states (Schmidt): the Joseph form keeps the covariance right for any gain
         I_KH = np.eye(ERROR_DIM) - K @ H
         P = I_KH @ P @ I_KH.T + K @ lin.noise @ K.T
         P = 0.5 * (P + P.T)

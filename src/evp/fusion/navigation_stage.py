@@ -32,7 +32,12 @@ filter's predicted position, and fused as a :class:`~evp.fusion.measurements.Gps
 while the monitor says TRUSTED; the filter's chi-square gate is the second guard (a spoofer's slow
 pull-off is gated before the monitor's window mean grows past its bound). Fixes without a lock
 (NaN) are dropped with a warning; the monitor's events (spoofing alarm, GPS lost or back, trust
-restored) are kept in ``gps_monitor.events`` and told as warnings.
+restored) are kept in ``gps_monitor.events`` and told as warnings. Each trusted fix (each fix of
+the alignment phase) is also paired with the camera's position in the visual map; when GPS stops
+being trusted (``hold_map_on_gps_loss``), the visual map's scale and pose fitted to those pairs
+(:mod:`evp.fusion.gps_map_fit`) replace the filter's, the body moving with the map, and the scale
+and attitude are held (no update moves them) until GPS is trusted again (``map_held`` /
+``map_released``; a jump of the map frees its attitude).
 
 A saved map's georeference (``map_georeference``, :mod:`evp.fusion.map_georeference`: SLAM
 started from a map saved by a georeferenced run): the world is ENU at the map's origin from the
@@ -56,6 +61,7 @@ import numpy as np
 from evp.config import MonitorSettings, NavigationSettings
 from evp.fusion.geodesy import EnuFrame
 from evp.fusion.gps_heading import WorldAlignment, align_to_gps, horizontal_spread
+from evp.fusion.gps_map_fit import GpsMapPairs, MapFit
 from evp.fusion.gps_monitor import GpsMonitor, GpsTrust
 from evp.fusion.inertial_refinement import refine_inertial, white_position_noise
 from evp.fusion.innovation import Innovation, UpdateStatus
@@ -133,7 +139,8 @@ class Notice:
     """Something the operator should hear of, as it happens: ``code`` names it (the filter's
     ``imu_not_finite`` / ``imu_out_of_order`` / ``imu_gap``, ``gps_no_lock``, ``visual_jump``, the GPS monitor's
     ``spoofing_alarm`` / ``gps_lost`` / ``gps_back`` / ``trust_restored``, and the ``info``
-    milestones ``navigation_started`` / ``georeferenced``)."""
+    milestones ``navigation_started`` / ``georeferenced`` / ``map_held`` / ``map_not_held`` /
+    ``map_released``)."""
 
     timestamp: float
     level: str  # info, warning
@@ -197,6 +204,7 @@ class NavigationStage:
         self._gps_locked = True  # False from a fix without lock until one with it (one warning per loss)
         self.last_tracking_state = TrackingState.NOT_INITIALIZED
         self.world_changes = 0  # jumps of the output frame: the filter's start (map units to metres) and the turn to ENU
+        self._map_pairs = GpsMapPairs(self.T_body_cam)  # trusted fixes (all before the monitor runs) with the camera's visual-map position, since the map last jumped
         self._before_start(GpsMonitor(monitor_settings or MonitorSettings()))
         self.map_georeference = map_georeference  # the saved map's, until the filter starts from it (or SLAM leaves the map)
         if map_georeference is not None:
@@ -229,6 +237,7 @@ class NavigationStage:
         self._accepted_since_jump = 0  # visual poses accepted since the last re-anchor
         self._jumps_in_a_row = 0  # re-anchors each followed by fewer than RESTART_ACCEPTED_POSES accepted poses
         self._ahead: tuple[NavState, NavState, ImuSample] | None = None  # (filter state, it carried ahead, last sample): predict's cache
+        self.map_fit: MapFit | None = None  # the fit the filter holds while GPS is not trusted
 
     @property
     def warnings(self) -> list[str]:
@@ -307,9 +316,11 @@ class NavigationStage:
         self._gps_locked = True
         if self.enu_frame is None:
             self.enu_frame = EnuFrame.at(fix)
+        enu = self.enu_frame.to_enu(*geodetic)[0]
+        if self.world_alignment is None:  # the alignment phase takes GPS as good (seed 002's)
+            self._map_pairs.add_fix(fix.timestamp, enu)
         if self.filter is None:
             return
-        enu = self.enu_frame.to_enu(*geodetic)[0]
         position = self.filter.state.position
         if self._last_fix_position is not None:
             self._travelled_m += float(np.linalg.norm(position[:2] - self._last_fix_position[:2]))
@@ -326,6 +337,8 @@ class NavigationStage:
         update = None
         if trust is GpsTrust.TRUSTED:
             update = self._update(GpsPosition(fix.timestamp, tuple(enu), fix.horizontal_accuracy_m, fix.vertical_accuracy_m))
+            if update.accepted:  # a spoofer's pull-off is gated within a second, long before the alarm
+                self._map_pairs.add_fix(fix.timestamp, enu)
         self.gps_records.append(GpsRecord(fix.timestamp, enu, trust, update))
 
     def _try_alignment(self, fix: GpsFix) -> None:
@@ -349,6 +362,8 @@ class NavigationStage:
             self._warn(timestamp, "georeferenced_short_track", f"{lost}: heading fitted on them, 1-sigma {heading_sigma_deg:.0f} deg")
             self._georeference(fix, local, spread)
             self.gps_monitor.without_fixes()
+            if self.settings.hold_map_on_gps_loss:
+                self._hold_map(timestamp, timestamp)
         else:
             self._told_short_track = True
             self._warn(timestamp, "not_georeferenced", f"{lost}: a heading fitted on them (1-sigma {heading_sigma_deg:.0f} deg) is not worth having; not georeferenced")
@@ -386,6 +401,33 @@ class NavigationStage:
     def _tell_monitor_events(self, first: int) -> None:
         for event in self.gps_monitor.events[first:]:
             self._warn(event.timestamp, event.kind, f"GPS at {event.timestamp:.3f} s: {event.message}")
+            if event.kind in ("spoofing_alarm", "gps_lost") and self.settings.hold_map_on_gps_loss and not self.filter.map_held:
+                # a spoofer pulls the fixes for the monitor's window before the alarm: they are not fitted
+                before = event.timestamp - (self.gps_monitor.settings.window_s if event.kind == "spoofing_alarm" else 0.0)
+                self._hold_map(event.timestamp, before)
+            elif event.kind == "trust_restored" and self.filter.map_held:
+                self.filter.release_map()
+                self.map_fit = None
+                self.notices.append(Notice(event.timestamp, "info", "map_released", "GPS trusted again: the visual map's scale and attitude follow the fused sensors again"))
+
+    def _hold_map(self, timestamp: float, before: float) -> None:
+        """Fit the visual map to the trusted phase's fixes up to ``before`` and hold it (see
+        :mod:`evp.fusion.gps_map_fit`); a notice says what was fitted, or why nothing was."""
+        fit = self._map_pairs.fit(before, self.settings.gps_align_min_spread_m, self.settings.gps_correlation_time_s)
+        if isinstance(fit, str):
+            self.notices.append(Notice(timestamp, "info", "map_not_held", f"GPS not trusted: the visual map is not fitted to it ({fit}); the filter's own scale and map pose go on"))
+            return
+        before_scale = self.filter.output()
+        self.filter.hold_map(math.log(fit.scale), fit.R_world_map, fit.t_world_map, fit.covariance)
+        self.map_fit = fit
+        self.world_changes += 1  # the body moved with the map: a jump of the answers
+        scale_sigma = 100 * math.sqrt(fit.covariance[0, 0])
+        text = (
+            f"GPS not trusted: the visual map fitted to {fit.pairs} fixes over {fit.span_s:.0f} s ({fit.dropped} dropped), RMS residual "
+            f"{fit.residual_m:.2f} m, scale {fit.scale:.4g} m per map unit +-{scale_sigma:.2f} % (the filter had {before_scale.scale:.4g} "
+            f"+-{100 * before_scale.scale_sigma:.2f} %): held until GPS is trusted again"
+        )
+        self.notices.append(Notice(timestamp, "info", "map_held", text))
 
     def _observe_wheels(self, record: WheelOdometry) -> None:
         """Before the start: kept for :func:`initialise_from_wheels`; then the forward speed with
@@ -410,6 +452,8 @@ class NavigationStage:
         """The estimate made metric once the filter runs; unchanged (``metric`` False) before."""
         self._follow_resets(estimate)
         tracked = estimate.tracking_state.tracked
+        if tracked:
+            self._map_pairs.add_pose(estimate.timestamp, estimate.T_world_cam)
         if self.filter is None:
             if tracked and self.map_georeference is not None:
                 self._start_from_saved_map(estimate)
@@ -457,6 +501,7 @@ class NavigationStage:
             self._restart(estimate.timestamp)
             return innovation
         self.filter.reset_visual_map(estimate.timestamp, keep_scale=True)
+        self._map_pairs.clear()
         text = f"visual poses refused since {estimate.timestamp - self.settings.visual_jump_reset_s:.3f} s: the visual map jumped; its pose re-anchored at {estimate.timestamp:.3f} s"
         self._warn(estimate.timestamp, "visual_jump", text)
         return self._update(pose)
@@ -548,6 +593,7 @@ class NavigationStage:
         if count == self._last_reset_count:
             return
         self._last_reset_count = count
+        self._map_pairs.clear()
         if self.filter is None:
             self._keyframes.clear()  # the poses so far belong to another map (or before a jump)
             self._recent.clear()

@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from evp.geometry.two_view import initial_two_view
+from evp.geometry.two_view import complete_two_view, two_view_candidate
+
+
+def initial_two_view(x1, x2, focal, min_parallax_deg=1.0, min_triangulated=50):
+    """The start SLAM makes: the unambiguous motion, then its map if its parallax is enough."""
+    candidate = two_view_candidate(x1, x2, focal, min_triangulated)
+    return None if candidate is None else complete_two_view(candidate, x1, x2, focal, min_parallax_deg, min_triangulated)
 
 
 def _views(points_world: np.ndarray, R21: np.ndarray, t21: np.ndarray, noise_px: float, focal: float, seed: int = 0):

@@ -230,19 +230,3 @@ def two_view_candidate(
     R1, R2, t = cv2.decomposeEssentialMat(E)
     candidates = [(R1, t), (R1, -t), (R2, t), (R2, -t)]
     return _best_motion(candidates, x1, x2, inlier_f, focal, min_triangulated, 0.7, "fundamental")
-
-
-def initial_two_view(
-    x1: np.ndarray,
-    x2: np.ndarray,
-    focal: float,
-    min_parallax_deg: float = 1.0,
-    min_triangulated: int = 50,
-    homography_ratio: float = 0.40,
-    sigma_px: float = 1.0,
-    parallel: Callable[..., list] | None = None,
-) -> TwoViewResult | None:
-    """Monocular initialisation: the unambiguous motion with parallax enough and its map;
-    ``None`` means "try again with a later frame", never a doubtful map."""
-    candidate = two_view_candidate(x1, x2, focal, min_triangulated, homography_ratio, sigma_px, parallel)
-    return None if candidate is None else complete_two_view(candidate, x1, x2, focal, min_parallax_deg, min_triangulated)

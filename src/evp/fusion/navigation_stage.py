@@ -417,15 +417,15 @@ class NavigationStage:
         if isinstance(fit, str):
             self.notices.append(Notice(timestamp, "info", "map_not_held", f"GPS not trusted: the visual map is not fitted to it ({fit}); the filter's own scale and map pose go on"))
             return
-        before_scale = self.filter.output()
+        own = self.filter.output()  # the filter's own scale, told beside the fit's
         self.filter.hold_map(math.log(fit.scale), fit.R_world_map, fit.t_world_map, fit.covariance)
         self.map_fit = fit
         self.world_changes += 1  # the body moved with the map: a jump of the answers
         scale_sigma = 100 * math.sqrt(fit.covariance[0, 0])
         text = (
             f"GPS not trusted: the visual map fitted to {fit.pairs} fixes over {fit.span_s:.0f} s ({fit.dropped} dropped), RMS residual "
-            f"{fit.residual_m:.2f} m, scale {fit.scale:.4g} m per map unit +-{scale_sigma:.2f} % (the filter had {before_scale.scale:.4g} "
-            f"+-{100 * before_scale.scale_sigma:.2f} %): held until GPS is trusted again"
+            f"{fit.residual_m:.2f} m, scale {fit.scale:.4g} m per map unit +-{scale_sigma:.2f} % (the filter had {own.scale:.4g} "
+            f"+-{100 * own.scale_sigma:.2f} %): held until GPS is trusted again"
         )
         self.notices.append(Notice(timestamp, "info", "map_held", text))
 

@@ -38,10 +38,10 @@ def _flight(duration_s=60.0, frame_rate=30.0, gps_rate=10.0):
     return frames, camera_in_map, fixes, lambda t: body(t)[0]
 
 
-def _pairs(noise_m=0.0, extra=lambda t: np.zeros(3), seed=0, **flight):
+def _pairs(noise_m=0.0, extra=lambda t: np.zeros(3), seed=0, max_span_s=600.0, **flight):
     frames, camera_in_map, fixes, body = _flight(**flight)
     rng = np.random.default_rng(seed)
-    pairs = GpsMapPairs(T_BODY_CAM)
+    pairs = GpsMapPairs(T_BODY_CAM, max_span_s=max_span_s)
     events = sorted([(t, "pose") for t in frames] + [(t, "fix") for t in fixes])
     for t, kind in events:
         if kind == "pose":
@@ -98,3 +98,8 @@ def test_fixes_are_paired_by_interpolation_and_not_across_a_pause():
     pairs.add_fix(1.2, np.zeros(3))
     pairs.add_pose(2.0, pose)  # 0.9 s without a pose: tracking paused, the fix is not paired
     assert len(pairs) == 1
+
+
+def test_only_the_newest_pairs_are_kept():
+    fit = _pairs(max_span_s=20.0).fit(np.inf, 5.0, 60.0)
+    assert 19.0 < fit.span_s <= 20.0 and fit.pairs <= 201

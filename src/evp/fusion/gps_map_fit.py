@@ -16,6 +16,7 @@ place; the fit over the whole phase sees the map's geometry at large (docs/decis
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,6 +28,10 @@ from evp.geometry.transforms import skew
 OUTLIER_PROBABILITY = 0.999  # a pair whose residual is beyond this chi-square quantile (3 dof) is dropped
 TRIM_ROUNDS = 3  # fits, each without the pairs the last one dropped and with the lever at its scale
 MIN_PAIRS = 10
+# The newest pairs kept: ten GPS error correlation times (a minute each) average the receiver's
+# error down by a factor of three, more add SLAM's drift over the span (0.5-0.8 % of scale over
+# 300 s, docs/decisions.md) and memory over a long session (36 000 pairs an hour at 10 Hz).
+MAX_SPAN_S = 600.0
 MEDIAN_CHI2_3 = float(chi2.ppf(0.5, 3))  # median of a squared 3-D Gaussian residual, in variances
 RESIDUAL_FLOOR_M = 0.01  # no fix is better than an RTK receiver's centimetre: closer pairs are never dropped
 
@@ -53,11 +58,12 @@ class GpsMapPairs:
     pair keeps the camera's position and the camera-to-body lever turned into the map (metres),
     which the fit divides by the scale it finds."""
 
-    def __init__(self, T_body_cam: np.ndarray, max_pose_gap_s: float = 0.25):
+    def __init__(self, T_body_cam: np.ndarray, max_pose_gap_s: float = 0.25, max_span_s: float = MAX_SPAN_S):
         T_body_cam = np.asarray(T_body_cam, float)
         self.R_cam_body = T_body_cam[:3, :3].T
         self.t_cam_body = -self.R_cam_body @ T_body_cam[:3, 3]  # the body's origin in the camera frame, metres
         self.max_pose_gap_s = max_pose_gap_s  # fixes between poses further apart are not paired (tracking paused)
+        self.max_span_s = max_span_s
         self.clear()
 
     def __len__(self) -> int:
@@ -67,10 +73,10 @@ class GpsMapPairs:
         """No pairs (the visual map jumped, or the world changed: the pairs so far belong to another)."""
         self._fixes: list[tuple[float, np.ndarray]] = []  # not yet paired: after the newest pose
         self._last_pose: tuple[float, np.ndarray, np.ndarray] | None = None
-        self.times: list[float] = []
-        self.camera_positions: list[np.ndarray] = []  # map units
-        self.levers: list[np.ndarray] = []  # camera to body, map axes, metres
-        self.world_positions: list[np.ndarray] = []
+        self.times: deque[float] = deque()
+        self.camera_positions: deque[np.ndarray] = deque()  # map units
+        self.levers: deque[np.ndarray] = deque()  # camera to body, map axes, metres
+        self.world_positions: deque[np.ndarray] = deque()
 
     def add_fix(self, timestamp: float, world: np.ndarray) -> None:
         self._fixes.append((timestamp, np.asarray(world, float)))
@@ -89,6 +95,9 @@ class GpsMapPairs:
                 self.camera_positions.append((1 - w) * last[1] + w * position)
                 self.levers.append((1 - w) * last[2] + w * lever)
                 self.world_positions.append(world)
+        while self.times and self.times[0] < timestamp - self.max_span_s:
+            for pairs in (self.times, self.camera_positions, self.levers, self.world_positions):
+                pairs.popleft()
 
     def fit(self, before: float, min_spread_m: float, correlation_time_s: float) -> MapFit | str:
         """The fit on the pairs up to ``before``, or why there is none."""

@@ -113,6 +113,15 @@ class _Node:
     events: list = field(default_factory=list)  # accepted measurements and map resets, in order
 
 
+def _uncorrelated(P: np.ndarray, states: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+    """``P`` with ``states`` uncorrelated with the rest and ``covariance`` among themselves."""
+    P = P.copy()
+    P[states, :] = 0.0
+    P[:, states] = 0.0
+    P[np.ix_(states, states)] = covariance
+    return P
+
+
 def initial_covariance(s: NavigationSettings) -> np.ndarray:
     """The prior covariance from the settings' initial sigmas (heading: ``initial_yaw_sigma_rad``
     on the body attitude's component along gravity, which for a levelled start is body z)."""
@@ -313,11 +322,7 @@ class NavigationFilter:
                 in_map = x.R_world_map.T @ (x.position - x.t_world_map) / x.scale
                 x = replace(x, position=s_new * R_new @ in_map + t_new, velocity=heading @ x.velocity, R_world_body=heading @ x.R_world_body)
             node.state = replace(x, log_scale=float(log_scale), R_world_map=R_new, t_world_map=t_new)
-            P = node.covariance.copy()
-            P[states, :] = 0.0
-            P[:, states] = 0.0
-            P[np.ix_(states, states)] = covariance
-            node.covariance = P
+            node.covariance = _uncorrelated(node.covariance, states, covariance)
         self._held[:] = False
         self._held[np.r_[LOG_SCALE, MAP_ATTITUDE]] = True
 
@@ -412,11 +417,7 @@ class NavigationFilter:
 
     def _to_prior(self, P: np.ndarray, states: np.ndarray) -> np.ndarray:
         """``P`` with ``states`` uncorrelated and at their prior variance."""
-        P = P.copy()
-        P[states, :] = 0.0
-        P[:, states] = 0.0
-        P[states, states] = self._prior_variances[states]
-        return P
+        return _uncorrelated(P, states, np.diag(self._prior_variances[states]))
 
     def _fuse(self, node: _Node, measurement: Measurement, gate: bool = True) -> tuple[Innovation, NavState, np.ndarray]:
         """The innovation of ``measurement`` at ``node`` and, when accepted, the corrected state

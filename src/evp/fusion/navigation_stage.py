@@ -333,7 +333,7 @@ class NavigationStage:
             return
         events = len(self.gps_monitor.events)
         trust, _ = self.gps_monitor.update(fix.timestamp, enu[:2], position[:2], self._travelled_m)
-        self._tell_monitor_events(events)
+        self._follow_monitor_events(events)
         update = None
         if trust is GpsTrust.TRUSTED:
             update = self._update(GpsPosition(fix.timestamp, tuple(enu), fix.horizontal_accuracy_m, fix.vertical_accuracy_m))
@@ -398,7 +398,8 @@ class NavigationStage:
         text = f"georeferenced: {ALIGNMENT_MODEL} fitted to {len(local)} fixes over {spread:.0f} m, RMS residual {residual:.2f} m"
         self.notices.append(Notice(fix.timestamp, "info", "georeferenced", text))
 
-    def _tell_monitor_events(self, first: int) -> None:
+    def _follow_monitor_events(self, first: int) -> None:
+        """Tell the monitor's new events, and hold the map fitted to GPS when trust goes, release it when trust returns."""
         for event in self.gps_monitor.events[first:]:
             self._warn(event.timestamp, event.kind, f"GPS at {event.timestamp:.3f} s: {event.message}")
             if event.kind in ("spoofing_alarm", "gps_lost") and self.settings.hold_map_on_gps_loss and not self.filter.map_held:
@@ -464,7 +465,7 @@ class NavigationStage:
         if self.world_alignment is not None:
             events = len(self.gps_monitor.events)
             self.gps_monitor.check_outage(estimate.timestamp)
-            self._tell_monitor_events(events)
+            self._follow_monitor_events(events)
         elif (
             self._last_paired_fix is not None
             and not self._told_short_track  # told once per loss: the pairs do not change until GPS is back

@@ -36,3 +36,21 @@ def test_evaluate_refuses_an_unresolved_tolerance():
     trajectory = Trajectory.from_poses(np.tile(np.eye(4), (5, 1, 1)), np.arange(5.0))
     with pytest.raises(ValueError, match="unresolved"):
         evaluate(trajectory, trajectory, EvalSettings())
+
+
+def test_slam_tracking_takes_the_gyro_when_the_dataset_has_an_imu_and_the_cameras_mounting():
+    from evp.run_setup import tracking_gyro
+    from evp.types import ImuSample
+
+    mounted = np.eye(4)
+    mounted[:3, :3] = [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]
+    imu = [ImuSample(0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 9.81))]
+    with_both = Dataset("test", "test", Path("."), frame_times=np.arange(3.0), imu=imu, T_body_cam=mounted)
+    gyro = tracking_gyro(Settings(), with_both, None)
+    assert np.array_equal(gyro.R_imu_cam, mounted[:3, :3])
+    assert gyro.noise_density == Settings().navigation.gyro_noise_density and gyro.bias_sigma == Settings().navigation.initial_gyro_bias_sigma
+    assert tracking_gyro(Settings(), Dataset("test", "test", Path("."), frame_times=np.arange(3.0), imu=imu), None) is None  # no mounting
+    assert tracking_gyro(Settings(), Dataset("test", "test", Path("."), frame_times=np.arange(3.0), T_body_cam=mounted), None) is None  # no IMU
+    assert tracking_gyro(Settings(slam={"gyro_aided_tracking": False}), with_both, None) is None
+    assert tracking_gyro(Settings(), None, mounted) is not None  # live: the phone's config gives the mounting
+    assert tracking_gyro(Settings(), None, None) is None

@@ -101,6 +101,10 @@ class SlamSettings(_Section):
         description="the refined trajectory localises up to this many frames from before initialisation against the final map (their features are kept until then; 0 = off)",
     )
     homography_ratio: float = Field(0.40, gt=0, lt=1, description="RH above this selects the homography")
+    gyro_aided_tracking: bool = Field(
+        True,
+        description="with an IMU and the camera's mounting on it (a dataset's, or the phone's config live), tracking predicts each frame's rotation with the gyro and holds the pose to it, weighed by navigation.gyro_noise_density and navigation.initial_gyro_bias_sigma (a hand-held pan: 87-96 % tracked without, 100 % with)",
+    )
     initial_median_depth_m: float = Field(1.0, gt=0, description="scale of the initial map (a known scene depth, e.g. altitude for a nadir camera)")
     motion_search_radius_px: float = Field(15.0, gt=0, description="guided search window around the motion-model prediction")
     local_map_search_radius_px: float = Field(4.0, gt=0, description="window for local map points (times the level scale)")

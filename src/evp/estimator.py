@@ -25,6 +25,10 @@ class Estimator(ABC):
     """A pose estimator fed one frame at a time, in time order."""
 
     reset_counter: int = 0  # bumped at each discontinuity (relocalisation, restart) consumers must know of
+    # whether observe may be called from another thread while feed runs: the estimator keeps its
+    # calls in order itself (one in another process or on a cluster's worker); live, an estimator
+    # that observes without this is fed each frame under the pipeline's lock
+    observes_while_feeding: bool = False
     lens: CameraModel | None = None  # the lens model it estimated from the images (a survey's self-calibration); None if none
 
     @abstractmethod

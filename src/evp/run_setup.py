@@ -20,6 +20,7 @@ if TYPE_CHECKING:
     from evp.fusion.map_georeference import MapGeoreference
     from evp.fusion.navigation_stage import NavigationStage
     from evp.pipeline import RunResult
+    from evp.slam.gyro_prior import GyroRotations
     from evp.slam.map import Map
     from evp.wifi.positioning import WifiLocator
 
@@ -115,10 +116,27 @@ def make_estimator(camera: CameraModel, settings: Settings, dataset: Dataset | N
         from evp.io.vocabulary_files import load_configured_vocabulary
         from evp.runtime.slam import build_slam
 
-        return build_slam(camera, settings.orb, settings.slam, load_configured_vocabulary(settings.slam.vocabulary), saved_map(camera, settings))
+        gyro = tracking_gyro(settings, dataset, T_body_cam)
+        return build_slam(camera, settings.orb, settings.slam, load_configured_vocabulary(settings.slam.vocabulary), saved_map(camera, settings), gyro)
     from evp.vo.klt_vo import KltVisualOdometry
 
     return KltVisualOdometry(camera, settings.vo)
+
+
+def tracking_gyro(settings: Settings, dataset: Dataset | None, T_body_cam: np.ndarray | None) -> GyroRotations | None:
+    """The gyro SLAM's tracking is aided by (``slam.gyro_aided_tracking``): a dataset's IMU with
+    its camera extrinsic, or live the mounting the phone's config gives (its IMU samples come
+    with the frames); None without either."""
+    if not settings.slam.gyro_aided_tracking:
+        return None
+    if dataset is not None:
+        T_body_cam = dataset.T_body_cam if dataset.imu else None
+    if T_body_cam is None:
+        return None
+    from evp.slam.gyro_prior import GyroRotations
+
+    navigation = settings.navigation
+    return GyroRotations(np.asarray(T_body_cam, float)[:3, :3], navigation.gyro_noise_density, navigation.initial_gyro_bias_sigma)
 
 
 def saved_map(camera: CameraModel, settings: Settings) -> Map | None:

@@ -237,3 +237,37 @@ def test_vision_that_fails_is_told_to_the_link_and_not_finished():
     assert isinstance(live.failed, RuntimeError) and "vision process ended" in str(live.failed)
     live.close()
     assert not estimator.finished, "a lost estimator is not asked to finish"
+
+
+class _ObservingVision(_GatedVision):
+    """Takes telemetry itself (SLAM's gyro, the EKF-SLAM's wheels)."""
+
+    def __init__(self, trajectory, in_order: bool):
+        super().__init__(trajectory)
+        self.observes_while_feeding = in_order
+        self.records: list = []
+
+    def observe(self, record) -> None:
+        self.records.append(record)
+
+
+def test_an_estimator_that_keeps_its_calls_in_order_is_fed_outside_the_stages_lock():
+    """An estimator in the vision process takes the pipe's messages in order, so its frames go
+    without the stages' lock and the answers at once never wait for them; one in this process
+    that observes is fed under it, so that no record reaches it in the middle of a frame."""
+    held = {}
+    for in_order in (True, False):
+        vision = _ObservingVision(SinusoidTrajectory(), in_order)
+        live = LivePipeline(Pipeline(vision, [_Done()]))
+        try:
+            vision.gate.clear()
+            live.frame(_frame(0, 0.0))
+            assert vision.entered.wait(timeout=10)
+            free = live.locked().acquire(blocking=False)
+            if free:
+                live.locked().release()
+            held[in_order] = not free
+        finally:
+            vision.gate.set()
+            live.close()
+    assert held == {True: False, False: True}

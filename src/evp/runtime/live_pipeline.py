@@ -124,10 +124,12 @@ class LivePipeline:
         self._latest = _Latest(pipeline.estimator)
         pipeline.sinks.insert(0, self._latest)
         self._waiting: Frame | None = None
-        # an estimator that takes telemetry itself (the EKF-SLAM's wheels) must not be given a
-        # record while it processes a frame: it then processes under the lock (answers at once
-        # wait for its frame, ~20 ms for the EKF-SLAM); SLAM takes none and runs outside it
-        self._estimator_observes = pipeline.estimator.uses_telemetry
+        # an estimator that takes telemetry itself (the EKF-SLAM's wheels, SLAM's gyro) must not
+        # be given a record while it processes a frame, unless it keeps its calls in order itself
+        # (one in the vision process or on a cluster): it then processes under the lock (answers
+        # at once wait for its frame, ~20 ms for the EKF-SLAM); others run outside it
+        estimator = pipeline.estimator
+        self._feed_under_lock = estimator.uses_telemetry and not estimator.observes_while_feeding
         self._closing = False
         self._wake = threading.Condition()
         self.visual_frames = 0  # frames the estimator took
@@ -212,7 +214,7 @@ class LivePipeline:
                 with self._lock:
                     more = self._release(frame.timestamp, RELEASE_BATCH)
             try:
-                if self._estimator_observes:  # the link's thread may release telemetry to it meanwhile
+                if self._feed_under_lock:  # the link's thread may release telemetry to it meanwhile
                     with self._lock:
                         self.pipeline.process(frame)
                 else:

@@ -12,6 +12,7 @@ from evp.config import OrbSettings, SlamSettings
 from evp.runtime.adjustment_process import AdjustmentProcess
 from evp.runtime.mapping_worker import MappingWorker
 from evp.runtime.parallel import HelperThreads
+from evp.slam.gyro_prior import GyroRotations
 from evp.slam.local_mapping import InlineMapping, LocalMapper, Mapping
 from evp.slam.map import Map
 from evp.slam.system import SlamSystem
@@ -43,13 +44,15 @@ class SlamRuntime:
         self.parallel.close()
 
 
-def build_slam(camera: CameraModel, orb: OrbSettings, settings: SlamSettings, vocabulary: Vocabulary, initial_map: Map | None = None) -> SlamSystem:
+def build_slam(
+    camera: CameraModel, orb: OrbSettings, settings: SlamSettings, vocabulary: Vocabulary, initial_map: Map | None = None, gyro: GyroRotations | None = None
+) -> SlamSystem:
     """The SLAM system scheduled as ``settings.mapping`` says, starting from ``initial_map`` (a
-    saved map to relocalise in) when given; ``finish()`` releases its threads and process (or
-    ``scheduler.close()``, for a run that failed)."""
+    saved map to relocalise in) when given, its tracking aided by ``gyro`` when given;
+    ``finish()`` releases its threads and process (or ``scheduler.close()``, for a run that failed)."""
     runtime = SlamRuntime(mapping_thread=settings.mapping == "thread")
     try:
-        return SlamSystem(camera, orb, settings, vocabulary=vocabulary, scheduler=runtime, initial_map=initial_map)
+        return SlamSystem(camera, orb, settings, vocabulary=vocabulary, scheduler=runtime, initial_map=initial_map, gyro=gyro)
     except BaseException:
         runtime.close()
         raise

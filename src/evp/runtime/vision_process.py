@@ -161,10 +161,15 @@ class _ServedEstimator(Estimator):
 
 
 class RemoteEstimator(_ServedEstimator):
-    """The estimator that :func:`serve_estimator` runs in the vision process, over its pipe."""
+    """The estimator that :func:`serve_estimator` runs in the vision process, over its pipe. The
+    process takes the pipe's messages one at a time, in order, so telemetry may be sent while a
+    frame is out (a lock keeps two sends from interleaving)."""
+
+    observes_while_feeding = True
 
     def __init__(self, connection):
         self._connection = connection
+        self._send_lock = threading.Lock()
         kind, info = self._receive()
         if kind != "ready":
             raise VisionLost(f"the vision process said {kind!r} where 'ready' was due")
@@ -178,7 +183,8 @@ class RemoteEstimator(_ServedEstimator):
 
     def _send(self, message: tuple) -> None:
         try:
-            self._connection.send(message)
+            with self._send_lock:
+                self._connection.send(message)
         except (OSError, ValueError) as exc:
             raise VisionLost("the vision process ended") from exc
 
@@ -201,6 +207,8 @@ class ClusterEstimator(_ServedEstimator):
     :class:`EstimatorServer` built there) as an actor, one per session for the session's life.
     The actor runs one call at a time, in order, so the estimator sees its frames and telemetry as
     a local one would; ``settle`` is sent after each answer and not waited for."""
+
+    observes_while_feeding = True  # the actor queues the calls in the order they come
 
     def __init__(self, address: str, server_class: type, *args, timeout_s: float = 60.0):
         from distributed import Client

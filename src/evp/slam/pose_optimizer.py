@@ -3,7 +3,9 @@
 A 6-parameter problem, so a small Gauss-Newton loop with a Huber kernel is the right tool here;
 every larger problem goes to the bundle adjuster's solver library. Four rounds classify
 observations as inliers or outliers by their chi-square error (the robust kernel is dropped in
-the last rounds, as ORB-SLAM does) so that a bad match cannot drag the pose.
+the last rounds, as ORB-SLAM does) so that a bad match cannot drag the pose. A rotation prior
+(the gyro's, :mod:`evp.slam.gyro_prior`) adds its chi-square term, as ORB-SLAM3's inertial pose
+optimisation adds the IMU's.
 """
 
 from __future__ import annotations
@@ -33,9 +35,12 @@ def optimise_pose(
     lens_jacobian: np.ndarray | None = None,
     rounds: int = 4,
     iterations: int = 10,
+    rotation_prior: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Refined ``T_cw`` and the inlier mask; ``observed`` are undistorted pixel coordinates, their
-    errors weighed in the detected image through ``lens_jacobian`` (``Features.lens_jacobian``)."""
+    errors weighed in the detected image through ``lens_jacobian`` (``Features.lens_jacobian``).
+    ``rotation_prior``: ``(R_cw, information)``, a measured rotation of the pose and its 3x3
+    information (per rad^2)."""
     T = T_cw.copy()
     inlier = np.ones(len(points), bool)
     converged_on = None  # (robust, inlier set) of the last converged solve: a repeat would not move
@@ -44,7 +49,7 @@ def optimise_pose(
         repeat = converged_on is not None and converged_on[0] == robust and np.array_equal(converged_on[1], inlier)
         if inlier.sum() >= 3 and not repeat:
             lens = None if lens_jacobian is None else lens_jacobian[inlier]
-            T, converged = _gauss_newton(T, points[inlier], observed[inlier], inv_sigma2[inlier], K, lens, robust, iterations)
+            T, converged = _gauss_newton(T, points[inlier], observed[inlier], inv_sigma2[inlier], K, lens, robust, iterations, rotation_prior)
             converged_on = (robust, inlier) if converged else None
         inlier = reprojection_chi2(points @ T[:3, :3].T + T[:3, 3], observed, K, inv_sigma2, lens_jacobian) < CHI2_2DOF
     T[:3, :3] = nearest_rotation(T[:3, :3])  # products of rotations drift off SO(3), slowly
@@ -52,11 +57,19 @@ def optimise_pose(
 
 
 def _gauss_newton(
-    T: np.ndarray, P: np.ndarray, obs: np.ndarray, w_info: np.ndarray, K: np.ndarray, lens_jacobian: np.ndarray | None, robust: bool, iterations: int
+    T: np.ndarray,
+    P: np.ndarray,
+    obs: np.ndarray,
+    w_info: np.ndarray,
+    K: np.ndarray,
+    lens_jacobian: np.ndarray | None,
+    robust: bool,
+    iterations: int,
+    rotation_prior: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, bool]:
     """Up to ``iterations`` Gauss-Newton steps from ``T``; the pose and whether it converged."""
     for _ in range(iterations):
-        xi = _gauss_newton_step(T, P, obs, w_info, K, lens_jacobian, robust)
+        xi = _gauss_newton_step(T, P, obs, w_info, K, lens_jacobian, robust, rotation_prior)
         if xi is None:
             return T, False
         T = apply_increment(T, xi)
@@ -70,14 +83,23 @@ def rotation_std_deg(T_cw: np.ndarray, points: np.ndarray, inv_sigma2: np.ndarra
     noise per pyramid-level sigma in the detected image: how well these points fix the pose.
     Points in a strip of the image, on a plane, leave tilt and sideways shift nearly
     interchangeable (a large value)."""
+    covariance = rotation_covariance(T_cw, points, inv_sigma2, K, lens_jacobian)
+    if covariance is None:
+        return np.full(3, np.inf)
+    return np.degrees(np.sqrt(np.maximum(np.diag(covariance), 0.0)))
+
+
+def rotation_covariance(T_cw: np.ndarray, points: np.ndarray, inv_sigma2: np.ndarray, K: np.ndarray, lens_jacobian: np.ndarray | None = None) -> np.ndarray | None:
+    """Covariance (rad^2, 3x3, of a left increment) of the rotation these points fix, the
+    translation left free (the rotation block of the pose covariance), at one pixel of noise per
+    pyramid-level sigma; None when they do not fix the pose."""
     _, J = _residuals_and_jacobian(T_cw, points, np.zeros((len(points), 2)), K, lens_jacobian)
     WJ = (J * inv_sigma2[:, None]).reshape(-1, 6)
     information = WJ.T @ J.reshape(-1, 6)
     try:
-        covariance = np.linalg.inv(information)
+        return np.linalg.inv(information)[:3, :3]
     except np.linalg.LinAlgError:
-        return np.full(3, np.inf)
-    return np.degrees(np.sqrt(np.maximum(np.diag(covariance)[:3], 0.0)))
+        return None
 
 
 def _residuals_and_jacobian(T: np.ndarray, P: np.ndarray, obs: np.ndarray, K: np.ndarray, lens_jacobian: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -110,9 +132,17 @@ def _residuals_and_jacobian(T: np.ndarray, P: np.ndarray, obs: np.ndarray, K: np
 
 
 def _gauss_newton_step(
-    T: np.ndarray, P: np.ndarray, obs: np.ndarray, w_info: np.ndarray, K: np.ndarray, lens_jacobian: np.ndarray | None, robust: bool
+    T: np.ndarray,
+    P: np.ndarray,
+    obs: np.ndarray,
+    w_info: np.ndarray,
+    K: np.ndarray,
+    lens_jacobian: np.ndarray | None,
+    robust: bool,
+    rotation_prior: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray | None:
-    """The increment ``xi`` minimising the (Huber-weighted) reprojection error to first order."""
+    """The increment ``xi`` minimising the (Huber-weighted) reprojection error, and the rotation
+    prior's error ``log(R R_prior^T)`` (``omega`` plus it, to first order), to first order."""
     r, J = _residuals_and_jacobian(T, P, obs, K, lens_jacobian)
     weight = w_info
     if robust:
@@ -120,5 +150,10 @@ def _gauss_newton_step(
         weight = w_info * np.where(e <= HUBER_DELTA, 1.0, HUBER_DELTA / np.maximum(e, 1e-12))
     WJ = (J * weight[:, None]).reshape(-1, 6)
     H = WJ.T @ J.reshape(-1, 6) + 1e-9 * np.eye(6)
-    solved, xi = cv2.solve(H, -(WJ.T @ r.reshape(-1, 1)), flags=cv2.DECOMP_CHOLESKY)  # a 6x6 system: OpenCV's call costs least
+    gradient = WJ.T @ r.reshape(-1, 1)
+    if rotation_prior is not None:
+        R_prior, information = rotation_prior
+        H[:3, :3] += information
+        gradient[:3, 0] += information @ cv2.Rodrigues(T[:3, :3] @ R_prior.T)[0].ravel()
+    solved, xi = cv2.solve(H, -gradient, flags=cv2.DECOMP_CHOLESKY)  # a 6x6 system: OpenCV's call costs least
     return xi.ravel() if solved else None

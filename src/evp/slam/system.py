@@ -10,7 +10,9 @@ keyframes refined by bundle adjustment (as ORB-SLAM saves it), while the live an
 known at that moment. Frames fed before initialisation are localised against the final map
 for the refined trajectory too (``slam.start_backfill_frames``). Started from a saved map
 (``initial_map``), it relocalises in it instead of initialising, and starts a map of its own only
-after ``slam.map_relocalise_timeout_s`` without finding it.
+after ``slam.map_relocalise_timeout_s`` without finding it. Given the camera's gyro (``gyro``, fed
+through :meth:`observe`), tracking predicts each frame's rotation with it and holds the pose
+optimisation to it (:mod:`evp.slam.gyro_prior`).
 """
 
 from __future__ import annotations
@@ -27,14 +29,15 @@ from evp.config import OrbSettings, SlamSettings
 from evp.estimator import Estimator
 from evp.geometry.transforms import scale_motion, se3_inverse
 from evp.geometry.two_view import TwoViewCandidate, complete_two_view, two_view_candidate
+from evp.slam.gyro_prior import GyroRotations
 from evp.slam.local_mapping import LocalMapper, NewKeyFrame
 from evp.slam.loop_closing import LoopClosure
 from evp.slam.map import KeyFrame, Map
 from evp.slam.map_adjustment import adjust_whole_map
-from evp.slam.pose_optimizer import optimise_pose
+from evp.slam.pose_optimizer import optimise_pose, rotation_covariance
 from evp.slam.projection import project_points, projected_stretch, undistorted_bounds
 from evp.slam.scheduler import InlineScheduler, Scheduler
-from evp.types import CameraModel, Frame, PoseEstimate, TrackingState
+from evp.types import CameraModel, Frame, ImuSample, PoseEstimate, TrackingState
 from evp.vision.images import grey_image
 from evp.vision.matching import TH_HIGH, TH_LOW, match_descriptors, match_in_window, rotation_consistent
 from evp.vision.orb import Features, OrbExtractor
@@ -161,8 +164,10 @@ class SlamSystem(Estimator):
         vocabulary: Vocabulary,
         scheduler: Scheduler | None = None,
         initial_map: Map | None = None,
+        gyro: GyroRotations | None = None,
     ):
         self.camera = camera
+        self.gyro = gyro
         self.settings = settings or SlamSettings()
         self.scheduler = scheduler or InlineScheduler()
         self.extractor = OrbExtractor(orb or OrbSettings(), camera, self.scheduler.parallel)
@@ -182,6 +187,8 @@ class SlamSystem(Estimator):
         self._last: _TrackedFrame | None = None
         self._velocity: np.ndarray | None = None  # motion between the last two tracked frames
         self._velocity_dt = 0.0  # their time apart (s)
+        self._rotation_prior: tuple[np.ndarray, np.ndarray] | None = None  # the gyro's R_cw for the frame being tracked, and its information
+        self._rotation_covariance: np.ndarray | None = None  # of the last tracked frame's rotation, when tracked (rad^2)
         self._reference_kf: int | None = None
         self._frame_count = 0
         self._last_kf_frame = 0
@@ -209,6 +216,8 @@ class SlamSystem(Estimator):
         # a frame is handled under the map lock, its answer too: the answer's record relates the
         # pose to its reference keyframe as tracked, before mapping can move that keyframe
         with self.map.lock:
+            if self.state != TrackingState.OK:
+                self._rotation_covariance = None  # a start or a relocalisation: the gyro's prior waits for a tracked frame
             if self.state == TrackingState.NOT_INITIALIZED:
                 T_cw = self._initialise(frame, features)
                 if T_cw is None:
@@ -222,6 +231,15 @@ class SlamSystem(Estimator):
             estimate = self._answer(frame, T_cw)
         self.tracking_ms.append((time.perf_counter() - start) * 1000.0)
         return estimate
+
+    @property
+    def uses_telemetry(self) -> bool:
+        return self.gyro is not None
+
+    def observe(self, record) -> None:
+        """The gyro's samples, when tracking has the gyro; other records are not used."""
+        if self.gyro is not None and isinstance(record, ImuSample):
+            self.gyro.add(record)
 
     def settle(self) -> None:
         """Inline mapping: map the last frame's keyframe now (feed does it first otherwise), so a
@@ -453,6 +471,44 @@ class SlamSystem(Estimator):
 
     def _track(self, timestamp: float, features: Features) -> np.ndarray | None:
         self._follow_reference_keyframe()
+        self._rotation_prior = self._gyro_prior(timestamp)
+        try:
+            T_cw = self._track_with_prior(timestamp, features)
+        finally:
+            prior, self._rotation_prior = self._rotation_prior, None
+        self._rotation_covariance = None if T_cw is None else self._rotation_posterior(T_cw, prior)
+        return T_cw
+
+    def _gyro_prior(self, timestamp: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """The frame's rotation as the gyro turns the last frame's, and its information: the
+        gyro's uncertainty plus the last frame's own (the prior inherits that frame's error), so
+        the gyro's 0.02 degrees a frame do not override a map that fixes rotation better, nor hold
+        a frame to a last one that was itself uncertain. The information is zero while the last
+        frame's uncertainty is unknown (the first frame after a start or a relocalisation): the
+        gyro then only predicts."""
+        measured = self.gyro.between(self._last.timestamp, timestamp) if self.gyro is not None else None
+        if measured is None:
+            return None
+        R = measured.R_c1_c0
+        if self._rotation_covariance is None:
+            return R @ self._last.T_cw[:3, :3], np.zeros((3, 3))
+        covariance = R @ self._rotation_covariance @ R.T + np.linalg.inv(measured.information)
+        return R @ self._last.T_cw[:3, :3], np.linalg.inv(covariance)
+
+    def _rotation_posterior(self, T_cw: np.ndarray, prior: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray | None:
+        """The tracked rotation's covariance (3x3, rad^2): what its inliers fix, with the gyro's
+        prior when there was one (information adds); None when it cannot be said."""
+        rows = np.flatnonzero(self._last.point_ids >= 0)
+        if len(rows) < 6:
+            return None
+        features = self._last.features
+        lens = None if features.lens_jacobian is None else features.lens_jacobian[rows]
+        covariance = rotation_covariance(T_cw, self.map.store.position[self._last.point_ids[rows]], self.extractor.inv_level_sigma2[features.octave[rows]], self.K, lens)
+        if covariance is None or prior is None:
+            return covariance
+        return np.linalg.inv(np.linalg.inv(covariance) + prior[1])
+
+    def _track_with_prior(self, timestamp: float, features: Features) -> np.ndarray | None:
         matched = np.full(len(features), -1)
         T_cw = None
         if self._velocity is not None:
@@ -530,13 +586,13 @@ class SlamSystem(Estimator):
         positions, _ = self._map_point_arrays(matched[rows])
         inv_sigma2 = self.extractor.inv_level_sigma2[features.octave[rows]]
         lens = None if features.lens_jacobian is None else features.lens_jacobian[rows]
-        T_cw, inlier = optimise_pose(T_cw, positions, features.un_px[rows], inv_sigma2, self.K, lens)
+        T_cw, inlier = optimise_pose(T_cw, positions, features.un_px[rows], inv_sigma2, self.K, lens, rotation_prior=self._rotation_prior)
         matched[rows[~inlier]] = -1
         return T_cw, int(inlier.sum())
 
     def _track_motion_model(self, timestamp: float, features: Features, matched: np.ndarray) -> np.ndarray | None:
         last = self._last
-        return self._track_from(last, self._predicted_motion(timestamp - last.timestamp) @ last.T_cw, features, matched)
+        return self._track_from(last, self._predicted_pose(timestamp), features, matched)
 
     def _track_from(self, last: _TrackedFrame, T_pred: np.ndarray, features: Features, matched: np.ndarray) -> np.ndarray | None:
         """Guided search for the points ``last`` tracked around their projection at ``T_pred``,
@@ -567,6 +623,23 @@ class SlamSystem(Estimator):
         T_cw, inliers = self._optimise(features, matched, T_pred)
         return T_cw if inliers >= 10 else None
 
+    def _predicted_pose(self, timestamp: float) -> np.ndarray:
+        """The motion model's pose at ``timestamp``: the camera where the constant velocity puts
+        it, turned as the gyro says when it says."""
+        return self._gyro_turned(self._predicted_motion(timestamp - self._last.timestamp) @ self._last.T_cw)
+
+    def _gyro_turned(self, T_cw: np.ndarray) -> np.ndarray:
+        """``T_cw`` with the gyro's rotation for the frame being tracked (its centre kept), or as
+        it is without one."""
+        if self._rotation_prior is None:
+            return T_cw
+        R_cw = self._rotation_prior[0]
+        centre = -T_cw[:3, :3].T @ T_cw[:3, 3]
+        turned = np.eye(4)
+        turned[:3, :3] = R_cw
+        turned[:3, 3] = -R_cw @ centre
+        return turned
+
     def _predicted_motion(self, dt: float) -> np.ndarray:
         """Constant velocity over ``dt``: a live stream drops frames, so the last motion is
         stretched to the time since the last tracked frame (at most 10 times; never backwards,
@@ -589,7 +662,7 @@ class SlamSystem(Estimator):
         if len(a) < 15:
             return None
         matched[b] = kf.point_ids[rows][a]
-        T_cw, inliers = self._optimise(features, matched, self._last.T_cw)
+        T_cw, inliers = self._optimise(features, matched, self._gyro_turned(self._last.T_cw))
         return T_cw if inliers >= 10 else None
 
     def _local_keyframes(self, matched: np.ndarray) -> list[int]:
@@ -632,7 +705,7 @@ class SlamSystem(Estimator):
         map around the last frame, thousands of points seen by several keyframes, is searched at
         the predicted pose with the motion model's window. ORB-SLAM goes from the motion model to
         the reference keyframe's bag of words, which a step like that defeats as well."""
-        T_pred = self._predicted_motion(timestamp - self._last.timestamp) @ self._last.T_cw
+        T_pred = self._predicted_pose(timestamp)
         local = self._local_keyframes(self._last.point_ids)
         T_cw, inliers = self._search_local_map(features, matched, T_pred, local, self.settings.motion_search_radius_px)
         return T_cw if inliers >= self.settings.min_tracked_inliers else None

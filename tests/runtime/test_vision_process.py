@@ -49,7 +49,7 @@ class _Observing(_Scripted):
     """The same, keeping the telemetry it observes (as an EKF-SLAM uses the wheels)."""
 
     def observe(self, record) -> None:
-        self.observed.append(record)
+        self.observed.append((record, self._last))  # with the last frame fed before it
 
 
 def _frames(count: int) -> list[Frame]:
@@ -66,13 +66,17 @@ def test_the_remote_estimator_is_the_estimator_seen_through_a_pipe():
     pipeline = Pipeline(remote, [result])
     pipeline.telemetry("imu 0")
     for frame in _frames(7):
+        if frame.index == 3:
+            pipeline.telemetry("imu 1")
+            pipeline.telemetry("imu 2")
         pipeline.process(frame)
     pipeline.finish()
     server.join(10)
     assert [e.T_world_cam[0, 3] for e in result.estimates] == [0, 1, 2, 3, 4, 6]
     assert result.skipped == ["frame 5: too dark"]
     assert remote.reset_counter == 1 and remote.loop_closures == ["loop at 3"]
-    assert scripted.observed == ["imu 0"] and scripted.settled == [0, 1, 2, 3, 4, 6]
+    # every record before the frame it precedes, in order (held by the remote side and sent with that frame)
+    assert scripted.observed == [("imu 0", -1), ("imu 1", 2), ("imu 2", 2)] and scripted.settled == [0, 1, 2, 3, 4, 6]
 
 
 def test_telemetry_is_not_sent_to_an_estimator_that_uses_none():

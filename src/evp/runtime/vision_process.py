@@ -95,9 +95,11 @@ class EstimatorServer:
         new, self._closures_told = closures[self._closures_told :], len(closures)
         return "estimate", (estimate, int(getattr(self.estimator, "reset_counter", 0)), new)
 
-    def observe(self, record: Any) -> None:
+    def observe(self, records: list) -> None:
+        """The telemetry that came before the next frame, in order."""
         self._lower()
-        self.estimator.observe(record)
+        for record in records:
+            self.estimator.observe(record)
 
     def settle(self) -> None:
         self._lower()
@@ -111,7 +113,7 @@ class EstimatorServer:
 
 
 def serve_estimator(connection, server: EstimatorServer) -> None:
-    """The vision process's loop: ``("feed", frame)``, ``("observe", record)`` and ``("finish",
+    """The vision process's loop: ``("feed", frame)``, ``("observe", records)`` and ``("finish",
     None)`` from the answering process, until it finishes or goes away; says ``("ready", info)``
     first."""
     connection.send(("ready", server.info()))
@@ -138,7 +140,12 @@ def serve_estimator(connection, server: EstimatorServer) -> None:
 
 class _ServedEstimator(Estimator):
     """The answering side's view of an :class:`EstimatorServer`: the estimator's counters
-    mirrored from each answer."""
+    mirrored from each answer. Telemetry is held here and goes with the next frame, in one call:
+    the estimator gets every record before the frame it precedes, as a local one would, and the
+    thread that hands it over never waits on the link (a vision process busy for seconds with a
+    loop's adjustment filled its pipe with 200 IMU samples a second, and the answers stopped)."""
+
+    observes_while_feeding = True
 
     @property
     def uses_telemetry(self) -> bool:
@@ -149,6 +156,19 @@ class _ServedEstimator(Estimator):
         self._observes: bool = info["observes"]
         self.reset_counter = 0
         self.loop_closures: list = []
+        self._pending: list = []
+        self._pending_lock = threading.Lock()
+
+    def observe(self, record: Any) -> None:
+        if self._observes:
+            with self._pending_lock:
+                self._pending.append(record)
+
+    def _take_pending(self) -> list:
+        """The records held since the last frame, now handed over."""
+        with self._pending_lock:
+            records, self._pending = self._pending, []
+        return records
 
     def _answer(self, kind: str, payload: Any) -> PoseEstimate:
         if kind == "rejected":
@@ -161,15 +181,10 @@ class _ServedEstimator(Estimator):
 
 
 class RemoteEstimator(_ServedEstimator):
-    """The estimator that :func:`serve_estimator` runs in the vision process, over its pipe. The
-    process takes the pipe's messages one at a time, in order, so telemetry may be sent while a
-    frame is out (a lock keeps two sends from interleaving)."""
-
-    observes_while_feeding = True
+    """The estimator that :func:`serve_estimator` runs in the vision process, over its pipe."""
 
     def __init__(self, connection):
         self._connection = connection
-        self._send_lock = threading.Lock()
         kind, info = self._receive()
         if kind != "ready":
             raise VisionLost(f"the vision process said {kind!r} where 'ready' was due")
@@ -183,18 +198,16 @@ class RemoteEstimator(_ServedEstimator):
 
     def _send(self, message: tuple) -> None:
         try:
-            with self._send_lock:
-                self._connection.send(message)
+            self._connection.send(message)
         except (OSError, ValueError) as exc:
             raise VisionLost("the vision process ended") from exc
 
     def feed(self, frame: Frame) -> PoseEstimate:
+        records = self._take_pending()
+        if records:
+            self._send(("observe", records))
         self._send(("feed", frame))
         return self._answer(*self._receive())
-
-    def observe(self, record: Any) -> None:
-        if self._observes:
-            self._send(("observe", record))
 
     def finish(self) -> None:
         self._send(("finish", None))
@@ -207,8 +220,6 @@ class ClusterEstimator(_ServedEstimator):
     :class:`EstimatorServer` built there) as an actor, one per session for the session's life.
     The actor runs one call at a time, in order, so the estimator sees its frames and telemetry as
     a local one would; ``settle`` is sent after each answer and not waited for."""
-
-    observes_while_feeding = True  # the actor queues the calls in the order they come
 
     def __init__(self, address: str, server_class: type, *args, timeout_s: float = 60.0):
         from distributed import Client
@@ -231,13 +242,12 @@ class ClusterEstimator(_ServedEstimator):
             raise VisionLost(f"the cluster's estimator is gone ({exc})") from exc
 
     def feed(self, frame: Frame) -> PoseEstimate:
+        records = self._take_pending()
+        if records:
+            self._call("observe", records, wait=False)  # the actor runs it before the frame: calls run in order
         estimate = self._answer(*self._call("feed", frame))
         self._call("settle", wait=False)
         return estimate
-
-    def observe(self, record: Any) -> None:
-        if self._observes:
-            self._call("observe", record, wait=False)
 
     def finish(self) -> None:
         try:

@@ -149,7 +149,9 @@ def test_operator_page_shows_the_gps_alignment_the_trust_change_and_the_alarm(st
         browser = playwright.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
         page = browser.new_context(ignore_https_errors=True).new_page()
         page.goto(station.http)
-        page.wait_for_function("document.getElementById('st-link').textContent === 'up'")
+        # the station's snapshot (its live sessions: none) must be in before the messages fed here,
+        # or, arriving after them on a loaded machine, it unselects their session
+        page.wait_for_function("document.getElementById('st-link').textContent === 'up' && document.getElementById('db').textContent !== ''")
         navigation = {"status": "initialised", "running": True, "gps": "aligning", "alignment": alignment, "sensors": ["imu", "gps"]}
         feed(page, {"type": "navigation", "session_id": sid, "navigation": navigation}, {"type": "pose", "session_id": sid, "pose": pose(0, "aligning", False)})
         banner = page.locator("#nav-banner")

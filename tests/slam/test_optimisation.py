@@ -54,7 +54,7 @@ def test_pose_optimisation_does_not_solve_the_same_round_twice(monkeypatch):
     steps = []
     step = pose_optimizer._gauss_newton_step
     monkeypatch.setattr(
-        pose_optimizer, "_gauss_newton_step", lambda T, P, obs, w, K_, lens, robust, prior=None: steps.append(robust) or step(T, P, obs, w, K_, lens, robust, prior)
+        pose_optimizer, "_gauss_newton_step", lambda T, inliers, robust: steps.append(robust) or step(T, inliers, robust)
     )
     rng = np.random.default_rng(3)
     points = rng.uniform([-3, -2, 3], [3, 2, 8], (100, 3))

@@ -10,6 +10,8 @@ optimisation adds the IMU's.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
@@ -49,27 +51,31 @@ def optimise_pose(
         repeat = converged_on is not None and converged_on[0] == robust and np.array_equal(converged_on[1], inlier)
         if inlier.sum() >= 3 and not repeat:
             lens = None if lens_jacobian is None else lens_jacobian[inlier]
-            T, converged = _gauss_newton(T, points[inlier], observed[inlier], inv_sigma2[inlier], K, lens, robust, iterations, rotation_prior)
+            fitted = _Inliers(points[inlier], observed[inlier], inv_sigma2[inlier], K, lens, rotation_prior)
+            T, converged = _gauss_newton(T, fitted, robust, iterations)
             converged_on = (robust, inlier) if converged else None
         inlier = reprojection_chi2(points @ T[:3, :3].T + T[:3, 3], observed, K, inv_sigma2, lens_jacobian) < CHI2_2DOF
     T[:3, :3] = nearest_rotation(T[:3, :3])  # products of rotations drift off SO(3), slowly
     return T, inlier
 
 
-def _gauss_newton(
-    T: np.ndarray,
-    P: np.ndarray,
-    obs: np.ndarray,
-    w_info: np.ndarray,
-    K: np.ndarray,
-    lens_jacobian: np.ndarray | None,
-    robust: bool,
-    iterations: int,
-    rotation_prior: tuple[np.ndarray, np.ndarray] | None = None,
-) -> tuple[np.ndarray, bool]:
+@dataclass(frozen=True)
+class _Inliers:
+    """What one Gauss-Newton solve fits the pose to: the inliers' points, their undistorted pixels,
+    information and lens Jacobians, and the rotation prior."""
+
+    points: np.ndarray
+    observed: np.ndarray
+    inv_sigma2: np.ndarray
+    K: np.ndarray
+    lens_jacobian: np.ndarray | None
+    rotation_prior: tuple[np.ndarray, np.ndarray] | None
+
+
+def _gauss_newton(T: np.ndarray, inliers: _Inliers, robust: bool, iterations: int) -> tuple[np.ndarray, bool]:
     """Up to ``iterations`` Gauss-Newton steps from ``T``; the pose and whether it converged."""
     for _ in range(iterations):
-        xi = _gauss_newton_step(T, P, obs, w_info, K, lens_jacobian, robust, rotation_prior)
+        xi = _gauss_newton_step(T, inliers, robust)
         if xi is None:
             return T, False
         T = apply_increment(T, xi)
@@ -131,28 +137,19 @@ def _residuals_and_jacobian(T: np.ndarray, P: np.ndarray, obs: np.ndarray, K: np
     return r, J
 
 
-def _gauss_newton_step(
-    T: np.ndarray,
-    P: np.ndarray,
-    obs: np.ndarray,
-    w_info: np.ndarray,
-    K: np.ndarray,
-    lens_jacobian: np.ndarray | None,
-    robust: bool,
-    rotation_prior: tuple[np.ndarray, np.ndarray] | None = None,
-) -> np.ndarray | None:
+def _gauss_newton_step(T: np.ndarray, inliers: _Inliers, robust: bool) -> np.ndarray | None:
     """The increment ``xi`` minimising the (Huber-weighted) reprojection error, and the rotation
     prior's error ``log(R R_prior^T)`` (``omega`` plus it, to first order), to first order."""
-    r, J = _residuals_and_jacobian(T, P, obs, K, lens_jacobian)
-    weight = w_info
+    r, J = _residuals_and_jacobian(T, inliers.points, inliers.observed, inliers.K, inliers.lens_jacobian)
+    weight = inliers.inv_sigma2
     if robust:
-        e = np.sqrt((r[0] * r[0] + r[1] * r[1]) * w_info)
-        weight = w_info * np.where(e <= HUBER_DELTA, 1.0, HUBER_DELTA / np.maximum(e, 1e-12))
+        e = np.sqrt((r[0] * r[0] + r[1] * r[1]) * weight)
+        weight = weight * np.where(e <= HUBER_DELTA, 1.0, HUBER_DELTA / np.maximum(e, 1e-12))
     WJ = (J * weight[:, None]).reshape(-1, 6)
     H = WJ.T @ J.reshape(-1, 6) + 1e-9 * np.eye(6)
     gradient = WJ.T @ r.reshape(-1, 1)
-    if rotation_prior is not None:
-        R_prior, information = rotation_prior
+    if inliers.rotation_prior is not None:
+        R_prior, information = inliers.rotation_prior
         H[:3, :3] += information
         gradient[:3, 0] += information @ cv2.Rodrigues(T[:3, :3] @ R_prior.T)[0].ravel()
     solved, xi = cv2.solve(H, -gradient, flags=cv2.DECOMP_CHOLESKY)  # a 6x6 system: OpenCV's call costs least

@@ -100,7 +100,7 @@ def _shared_random_drops(seeds: int) -> None:
         for seed in range(1, seeds + 1):
             rng = np.random.default_rng(seed)
             frames = [frame for frame in every if rng.random() >= 0.2]
-            result = run_frames(make_estimator(dataset.camera, Settings(estimator="slam"), dataset), frames)
+            result = run_frames(make_estimator(dataset.camera, Settings(estimator="slam"), dataset), frames, telemetry=dataset.telemetry())  # its IMU too, as evp run
             record = {
                 "sequence": sequence,
                 "pattern": "20 % at random",

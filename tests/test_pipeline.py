@@ -30,6 +30,7 @@ def test_sample_run_tracks_and_is_accurate(tmp_path):
     assert metrics["rmse"] <= 0.01 * 1.05
     assert metrics["init_frame"] <= 10
     assert metrics["loop_closures"] == []  # a slider's back-and-forth stays covisible: nothing to close
+    assert metrics["gyro_aided_tracking"] is False  # the sample has no IMU
     # trajectory.tum is the globally adjusted map's, trajectory_live.tum the poses as answered
     assert (tmp_path / "trajectory_live.tum").read_text() != (tmp_path / "trajectory.tum").read_text()
     assert result.estimates[0].tracking_state is TrackingState.NOT_INITIALIZED

@@ -64,6 +64,7 @@ def test_a_hand_held_pan_keeps_tracking_as_the_view_turns_into_the_unseen_side(t
     # was lost (67 % tracked, ATE 4.2 cm). The gyro's rotation as tracking's prior keeps it.
     generate("handheld-pan", SimOptions(duration_s=10.0, fps=30.0, seed=2), tmp_path, workers=2)
     dataset, result, trajectory, rmse = _run(tmp_path)
+    assert result.estimator.report()["gyro_aided_tracking"]  # the render's IMU, through its extrinsic
     stamps = [estimate.timestamp for estimate in result.estimates]
     assert stamps[result.init_frame] - stamps[0] <= 2.0  # the pan starts after 1 s
     assert len(trajectory) >= 0.95 * len(stamps)

@@ -99,6 +99,8 @@ def run(
         f"({100 * metrics['tracked_fraction']:.1f} %; {metrics['tracked_live_frames']} answered live, the first at frame {metrics['init_frame']})"
         + (f", {metrics['frames_dropped']} dropped by the real-time replay (x{speed:g})" if realtime else "")
     )
+    if metrics.get("gyro_aided_tracking"):
+        typer.echo("tracking held to the gyro (the dataset's IMU, through its camera extrinsic)")
     if "rmse" in metrics:
         typer.echo(
             f"ATE ({ALIGNED[settings.eval.align]} RMSE) {metrics['rmse']:.4f} m over {metrics['matched_poses']} poses; "

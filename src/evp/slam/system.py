@@ -290,7 +290,7 @@ class SlamSystem(Estimator):
         }
 
     def report(self) -> dict:
-        report = {"loop_closures": [asdict(closure) for closure in self.loop_closures]}
+        report = {"loop_closures": [asdict(closure) for closure in self.loop_closures], "gyro_aided_tracking": self.gyro is not None}
         if self.saved_map is not None:
             report["saved_map"] = asdict(self.saved_map)
         return report

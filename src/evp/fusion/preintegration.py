@@ -60,13 +60,27 @@ def imu_spans(times: np.ndarray, t0: float, t1: float) -> bool:
 def samples_between(times: np.ndarray, gyro: np.ndarray, accel: np.ndarray, t0: float, t1: float):
     """The IMU readings in [t0, t1], with readings interpolated linearly at t0 and t1 (the nearest
     reading held outside the samples)."""
+    t, readings = readings_between(times, np.hstack([gyro, accel]), t0, t1)
+    return t, readings[:, :3], readings[:, 3:]
+
+
+def readings_between(times: np.ndarray, readings: np.ndarray, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
+    """The times and rows of ``readings`` (N, k) in [t0, t1], rows interpolated linearly at t0 and
+    t1 (the nearest row held outside the samples)."""
     inside = (times > t0) & (times < t1)
-    ends = [np.interp(t, times, column) for t in (t0, t1) for column in (*gyro.T, *accel.T)]
-    start, end = np.reshape(ends[:6], 6), np.reshape(ends[6:], 6)
-    t = np.concatenate([[t0], times[inside], [t1]])
-    w = np.vstack([start[:3], gyro[inside], end[:3]])
-    f = np.vstack([start[3:], accel[inside], end[3:]])
-    return t, w, f
+    ends = np.array([[np.interp(t, times, column) for column in readings.T] for t in (t0, t1)])
+    return np.concatenate([[t0], times[inside], [t1]]), np.vstack([ends[0], readings[inside], ends[1]])
+
+
+def rotation_chain(t: np.ndarray, w: np.ndarray, gyro_bias: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The body's rotation from ``t[0]`` to each reading's time (N, 3, 3), each step turned by the
+    mean of its two rates less ``gyro_bias``, and the steps themselves (N-1, 3, 3)."""
+    steps = so3_exp_many((0.5 * (w[:-1] + w[1:]) - gyro_bias) * np.diff(t)[:, None])
+    R = np.empty((len(t), 3, 3))
+    R[0] = np.eye(3)
+    for j, step in enumerate(steps):
+        R[j + 1] = R[j] @ step
+    return R, steps
 
 
 def preintegrate(t: np.ndarray, w: np.ndarray, f: np.ndarray, gyro_bias: np.ndarray, noise_densities: tuple[float, float] | None = None) -> Preintegrated:
@@ -77,11 +91,7 @@ def preintegrate(t: np.ndarray, w: np.ndarray, f: np.ndarray, gyro_bias: np.ndar
     visual-inertial start preintegrates every interval of up to 60 keyframes per attempt, and the
     loop of small NumPy calls per sample took two thirds of its time."""
     h = np.diff(t)
-    steps = so3_exp_many((0.5 * (w[:-1] + w[1:]) - gyro_bias) * h[:, None])
-    R = np.empty((len(t), 3, 3))  # dR at each reading
-    R[0] = np.eye(3)
-    for j, step in enumerate(steps):
-        R[j + 1] = R[j] @ step
+    R, steps = rotation_chain(t, w, gyro_bias)  # dR at each reading
     a = np.einsum("nij,nj->ni", R, f)  # each reading's force in the start frame
     hv, hm = h[:, None], h[:, None, None]
     dv_steps = 0.5 * (a[:-1] + a[1:]) * hv

@@ -15,13 +15,12 @@ Core: samples in, rotations out; the pipeline feeds the samples (``SlamSystem.ob
 
 from __future__ import annotations
 
-from collections import deque
+from bisect import bisect_left, bisect_right
 from dataclasses import dataclass
 
 import numpy as np
 
-from evp.fusion.nav_state import so3_exp_many
-from evp.fusion.preintegration import imu_spans, samples_between
+from evp.fusion.preintegration import imu_spans, readings_between, rotation_chain
 from evp.geometry.transforms import rotation_angle
 from evp.types import ImuSample
 
@@ -54,34 +53,34 @@ class GyroRotations:
         self.R_imu_cam = np.asarray(R_imu_cam, float)
         self.noise_density = float(noise_density)
         self.bias_sigma = float(bias_sigma)
-        self._samples: deque[tuple[float, np.ndarray]] = deque()
+        self._times: list[float] = []
+        self._rates: list[tuple[float, float, float]] = []
 
     def add(self, sample: ImuSample) -> None:
         """One sample, in time order (one out of order is ignored: the rotation needs a chain)."""
-        if self._samples and sample.timestamp <= self._samples[-1][0]:
+        if self._times and sample.timestamp <= self._times[-1]:
             return
-        rate = np.asarray(sample.angular_velocity_rad_s, float)
-        if not np.all(np.isfinite(rate)):
+        rate = tuple(float(value) for value in sample.angular_velocity_rad_s)
+        if not all(np.isfinite(rate)):
             return
-        self._samples.append((float(sample.timestamp), rate))
-        while self._samples[-1][0] - self._samples[0][0] > KEEP_S:
-            self._samples.popleft()
+        self._times.append(float(sample.timestamp))
+        self._rates.append(rate)
+        if self._times[-1] - self._times[0] > 2 * KEEP_S:  # trimmed now and then, not at every sample
+            old = bisect_left(self._times, self._times[-1] - KEEP_S)
+            del self._times[:old], self._rates[:old]
 
     def between(self, t0: float, t1: float) -> RotationPrior | None:
-        """The camera's rotation from ``t0`` to ``t1``, or None when the samples do not span them."""
-        if t1 <= t0 or len(self._samples) < 2:
+        """The camera's rotation from ``t0`` to ``t1``, or None when the samples do not span them.
+        Only the samples around the interval are read (a frame's few, not the buffer's hundreds)."""
+        first = max(bisect_right(self._times, t0) - 2, 0)  # two before t0: a period to measure at either end
+        last = min(bisect_left(self._times, t1) + 2, len(self._times))
+        times = np.array(self._times[first:last])
+        if t1 <= t0 or len(times) < 2 or not imu_spans(times, t0, t1):
             return None
-        times = np.array([t for t, _ in self._samples])
-        if not imu_spans(times, t0, t1):
-            return None
-        rates = np.array([w for _, w in self._samples])
-        t, w, _ = samples_between(times, rates, rates, t0, t1)
-        R_i0_i1 = np.eye(3)
-        for step in so3_exp_many(0.5 * (w[:-1] + w[1:]) * np.diff(t)[:, None]):
-            R_i0_i1 = R_i0_i1 @ step
+        t, w = readings_between(times, np.array(self._rates[first:last]), t0, t1)
+        R_i0_i1 = rotation_chain(t, w, np.zeros(3))[0][-1]
         R_c0_c1 = self.R_imu_cam.T @ R_i0_i1 @ self.R_imu_cam
         dt = t1 - t0
         angle = float(rotation_angle(R_c0_c1))
         variance = self.noise_density**2 * dt + (self.bias_sigma * dt) ** 2 + (MOUNT_SIGMA_RAD * angle) ** 2
         return RotationPrior(R_c0_c1.T, np.eye(3) / variance)
-

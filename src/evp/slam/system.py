@@ -476,7 +476,8 @@ class SlamSystem(Estimator):
             T_cw = self._track_with_prior(timestamp, features)
         finally:
             prior, self._rotation_prior = self._rotation_prior, None
-        self._rotation_covariance = None if T_cw is None else self._rotation_posterior(T_cw, prior)
+        if self.gyro is not None:  # what the next frame's prior inherits; nothing to carry without a gyro
+            self._rotation_covariance = None if T_cw is None else self._rotation_posterior(T_cw, prior)
         return T_cw
 
     def _gyro_prior(self, timestamp: float) -> tuple[np.ndarray, np.ndarray] | None:

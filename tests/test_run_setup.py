@@ -49,6 +49,7 @@ def test_slam_tracking_takes_the_gyro_when_the_dataset_has_an_imu_and_the_camera
     gyro = tracking_gyro(Settings(), with_both, None)
     assert np.array_equal(gyro.R_imu_cam, mounted[:3, :3])
     assert gyro.noise_density == Settings().navigation.gyro_noise_density and gyro.bias_sigma == Settings().navigation.initial_gyro_bias_sigma
+    assert gyro.max_gap_s == Settings().navigation.max_imu_gap_s
     assert tracking_gyro(Settings(), Dataset("test", "test", Path("."), frame_times=np.arange(3.0), imu=imu), None) is None  # no mounting
     assert tracking_gyro(Settings(), Dataset("test", "test", Path("."), frame_times=np.arange(3.0), T_body_cam=mounted), None) is None  # no IMU
     assert tracking_gyro(Settings(slam={"gyro_aided_tracking": False}), with_both, None) is None

@@ -136,7 +136,7 @@ def tracking_gyro(settings: Settings, dataset: Dataset | None, T_body_cam: np.nd
     from evp.slam.gyro_prior import GyroRotations
 
     navigation = settings.navigation
-    return GyroRotations(np.asarray(T_body_cam, float)[:3, :3], navigation.gyro_noise_density, navigation.initial_gyro_bias_sigma)
+    return GyroRotations(np.asarray(T_body_cam, float)[:3, :3], navigation.gyro_noise_density, navigation.initial_gyro_bias_sigma, navigation.max_imu_gap_s)
 
 
 def saved_map(camera: CameraModel, settings: Settings) -> Map | None:

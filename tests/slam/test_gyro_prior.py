@@ -59,6 +59,14 @@ def test_no_prior_where_the_samples_do_not_reach_and_bad_samples_are_left_out():
     assert gyro.between(0.9, 1.0) is not None
 
 
+def test_no_prior_across_a_gap_in_the_samples():
+    gyro = GyroRotations(R_IMU_CAM, 1.7e-4, 0.01, max_gap_s=0.1)
+    for t in [*np.arange(0.0, 0.5, 0.005), *np.arange(0.7, 1.0, 0.005)]:  # 0.2 s without samples
+        gyro.add(ImuSample(float(t), (0.0, 0.0, 0.5), (0.0, 0.0, 9.81)))
+    assert gyro.between(0.45, 0.75) is None
+    assert gyro.between(0.40, 0.45) is not None and gyro.between(0.75, 0.80) is not None
+
+
 def test_only_the_last_seconds_are_kept():
     gyro = _gyro(lambda t: np.zeros(3), end=10.0)
     assert gyro.between(1.0, 1.1) is None

@@ -47,12 +47,14 @@ class GyroRotations:
 
     ``R_imu_cam``: the camera's orientation in the IMU frame (the mount); ``noise_density`` the
     gyro's white noise (rad/s/sqrt(Hz)) and ``bias_sigma`` the 1-sigma of its uncompensated bias
-    (rad/s): nothing estimates the bias here, so a rotation over dt carries bias_sigma * dt."""
+    (rad/s): nothing estimates the bias here, so a rotation over dt carries bias_sigma * dt.
+    An interval with a gap over ``max_gap_s`` between its samples gets no prior."""
 
-    def __init__(self, R_imu_cam: np.ndarray, noise_density: float, bias_sigma: float):
+    def __init__(self, R_imu_cam: np.ndarray, noise_density: float, bias_sigma: float, max_gap_s: float = 0.1):
         self.R_imu_cam = np.asarray(R_imu_cam, float)
         self.noise_density = float(noise_density)
         self.bias_sigma = float(bias_sigma)
+        self.max_gap_s = float(max_gap_s)  # samples further apart inside an interval: no prior (a turn across the gap is a guess)
         self._times: list[float] = []
         self._rates: list[tuple[float, float, float]] = []
 
@@ -75,7 +77,7 @@ class GyroRotations:
         first = max(bisect_right(self._times, t0) - 2, 0)  # two before t0: a period to measure at either end
         last = min(bisect_left(self._times, t1) + 2, len(self._times))
         times = np.array(self._times[first:last])
-        if t1 <= t0 or len(times) < 2 or not imu_spans(times, t0, t1):
+        if t1 <= t0 or len(times) < 2 or not imu_spans(times, t0, t1) or np.diff(times).max() > self.max_gap_s:
             return None
         t, w = readings_between(times, np.array(self._rates[first:last]), t0, t1)
         R_i0_i1 = rotation_chain(t, w, np.zeros(3))[0][-1]

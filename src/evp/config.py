@@ -377,6 +377,10 @@ class NavigationSettings(_Section):
         gt=0,
         description="inertial refinement: the filter starts only once the refined scale's 1-sigma is below this share (the rendered circle: 7.6-9.2 s into the walk at 4 %; 3 % was never reached within 10 s windows)",
     )
+    refine_scale_after_start: bool = Field(
+        True,
+        description="after a visual-inertial start, the inertial refinement over every keyframe since the map began is run again 1, 2.5, 5 and 15 s after it (ORB-SLAM3's re-runs at 5 and 15 s, two earlier for our earlier start) and its scale replaces the filter's where it is known better, while no GPS fix or wheel speed has been fused and the map's scale is one number over the keyframes (evp.fusion.scale_refinement): a start on a slow walk's barely determined scale is corrected within seconds (rendered circle seed 2: 22 % off at the start, -4.6 % after 23 s without, +2 % from 4.5 s on with)",
+    )
     vi_init_refine: bool = Field(
         True,
         description="visual-inertial initialisation: when the newest window's linear alignment leaves the scale undetermined (its sigma, with what an accelerometer bias of vi_init_accel_bias_sigma could move it by, over vi_init_max_scale_sigma), that alignment seeds the maximum-likelihood refinement (ORB-SLAM3's inertial-only optimisation, evp.fusion.inertial_refinement) over every keyframe since the first, which starts the filter once its scale sigma is under vi_refine_max_scale_sigma: a walker's slow circle, whose scale a bias along its centripetal acceleration mimics (rendered circle SE3 ATE 8.8/7.5/1.8 -> 2.2/2.8/1.8 cm on the same SLAM poses)",

@@ -98,6 +98,40 @@ class VisualPose:
 
 
 @dataclass(frozen=True)
+class RefinedScale:
+    """The visual map's scale (metres per map unit) with its relative 1-sigma, estimated apart
+    from the filter: the inertial refinement over every keyframe since the map began
+    (:mod:`evp.fusion.scale_refinement`)."""
+
+    timestamp: float
+    scale: float
+    sigma: float
+    T_body_cam: np.ndarray = field(default_factory=lambda: np.eye(4))  # the camera in the IMU frame
+    kind = "refined_scale"
+
+    def linearise(self, x: NavState, gyro: np.ndarray, s: NavigationSettings) -> Linearisation | Refusal:
+        if not (_finite(self.scale, self.sigma) and self.scale > 0 and self.sigma > 0):
+            return Refusal(f"refined scale {self.scale} +- {self.sigma} is not a positive finite number")
+        if not x.map_anchored:
+            return Refusal("the visual map is not anchored: no scale to measure")
+        H = np.zeros((1, ERROR_DIM))
+        H[0, LOG_SCALE] = 1.0
+        return Linearisation(np.array([math.log(self.scale) - x.log_scale]), H, np.array([[self.sigma**2]]))
+
+    def carried(self, x: NavState) -> tuple[np.ndarray, np.ndarray]:
+        """The states that move with the scale by geometry, not by the filter's correlations, and
+        their change per unit of the log scale: with the body kept where the map has it, the
+        camera's offset from the map's origin and the velocity (both seen through the map) grow
+        with the scale, by ``exp(r) - 1`` for a change ``r`` of the log scale (so that the step to
+        this scale is exact, not first order)."""
+        change = math.log(self.scale) - x.log_scale
+        growth = math.expm1(change) / change if abs(change) > 1e-12 else 1.0
+        offset = x.position + x.R_world_body @ self.T_body_cam[:3, 3] - x.t_world_map
+        states = np.r_[LOG_SCALE, POSITION.start : POSITION.stop, VELOCITY.start : VELOCITY.stop]
+        return states, np.r_[1.0, growth * offset, growth * x.velocity][:, None]
+
+
+@dataclass(frozen=True)
 class BaroAltitude:
     """Barometric altitude (m); the filter's bias state absorbs its offset from world z."""
 

@@ -21,6 +21,12 @@ its scale) is forgotten, the next visual pose re-anchors it (nominal set so that
 the current body estimate, covariance reset to the prior, then a normal update restores its
 correlation with the body pose), so the jump never enters the body state as motion.
 
+A :class:`~evp.fusion.measurements.RefinedScale` (the inertial refinement over the keyframes
+since the map began, made from the IMU the filter has integrated) replaces the filter's scale
+rather than being averaged with it: fusing both as independent would count that data twice.
+The body moves with the map (its offset from the map's origin and its velocity grow with the
+scale), and the other states keep the filter's covariance given the scale.
+
 The map's pose and scale can be set from outside and held (:meth:`NavigationFilter.hold_map`: the
 fit of the visual map to GPS when GPS is lost): held states are Schmidt-Kalman "consider"
 states, their uncertainty kept in the covariance (and so in every other state's) but no update
@@ -37,7 +43,7 @@ import numpy as np
 
 from evp.config import NavigationSettings
 from evp.fusion.innovation import Innovation, UpdateStatus, gated_innovation
-from evp.fusion.measurements import BaroAltitude, GpsPosition, Measurement, Refusal, VisualPose
+from evp.fusion.measurements import BaroAltitude, GpsPosition, RefinedScale, Measurement, Refusal, VisualPose
 from evp.fusion.nav_state import (
     ACCEL_BIAS,
     ATTITUDE,
@@ -421,7 +427,7 @@ class NavigationFilter:
 
     def _fuse(self, node: _Node, measurement: Measurement, gate: bool = True) -> tuple[Innovation, NavState, np.ndarray]:
         """The innovation of ``measurement`` at ``node`` and, when accepted, the corrected state
-        and covariance (Joseph form, symmetrised)."""
+        and covariance (Joseph form, symmetrised; a refined scale replaces the filter's)."""
         x, P = node.state, node.covariance
         if isinstance(measurement, VisualPose) and not x.map_anchored:
             x, P = self._anchor_map(x, P, measurement)
@@ -429,6 +435,8 @@ class NavigationFilter:
             x = replace(x, baro_bias=measurement.altitude_m - x.position[2], baro_initialised=True)
         elif isinstance(measurement, GpsPosition) and x.gps_bias_variance is None:
             x, P = self._start_gps_error(x, P, measurement)
+        if isinstance(measurement, RefinedScale) and self._held[LOG_SCALE]:
+            return Innovation(measurement.timestamp, measurement.kind, UpdateStatus.REFUSED, message="the map's scale is held (fitted to GPS)"), x, P
         lin = measurement.linearise(x, imu_vectors(node.imu)[0], self.settings)
         if isinstance(lin, Refusal):
             return Innovation(measurement.timestamp, measurement.kind, UpdateStatus.REFUSED, message=lin.reason), x, P
@@ -437,6 +445,9 @@ class NavigationFilter:
         innovation, S_inv = gated_innovation(measurement.timestamp, measurement.kind, r, H @ PHt + lin.noise, self.settings.gate_probability, gate)
         if not innovation.accepted:
             return innovation, node.state, node.covariance
+        if isinstance(measurement, RefinedScale):
+            x, P = self._replace_marginal(x, P, H, r, lin.noise, measurement.carried(x))
+            return innovation, x, P
         K = PHt @ S_inv
         K[self._held] = 0.0  # consider states (Schmidt): the Joseph form keeps the covariance right for any gain
         I_KH = np.eye(ERROR_DIM) - K @ H
@@ -446,6 +457,22 @@ class NavigationFilter:
         if isinstance(measurement, GpsPosition):
             x = replace(x, georeferenced=True)
         return innovation, x, P
+
+    def _replace_marginal(self, x: NavState, P: np.ndarray, H: np.ndarray, r: np.ndarray, noise: np.ndarray, carried: tuple[np.ndarray, np.ndarray]) -> tuple[NavState, np.ndarray]:
+        """The filter's estimate of ``H x`` replaced by the measurement (``r``: measured minus
+        predicted, ``noise``: its covariance), for an estimate made from the same data as the
+        filter's (the inertial refinement of the scale over the IMU the filter integrated), where
+        fusing both as independent would count that data twice and leave the filter's own, worse
+        answer a say. The joint becomes the filter's distribution of the rest given ``H x`` times
+        the measurement's of ``H x``: every state moves with ``H x`` by its regression on it in
+        the filter's covariance, except the states ``carried`` names (indices, and their change per
+        unit of ``H x``, one column per row of ``H``), which move as it says."""
+        C = P @ H.T
+        regression = np.linalg.solve(H @ C, C.T).T  # each state's change per unit of H x, as the filter has it
+        states, change = carried
+        regression[states] = change
+        P = P - C @ np.linalg.solve(H @ C, C.T) + regression @ noise @ regression.T  # given H x, then H x's new spread
+        return x.inject(regression @ r), 0.5 * (P + P.T)
 
     def _start_gps_error(self, x: NavState, P: np.ndarray, fix: GpsPosition) -> tuple[NavState, np.ndarray]:
         """The GPS error state at the first fix: zero, uncorrelated, at the stationary variance of

@@ -11,7 +11,10 @@ passes the estimates on unchanged (``metric`` False: "scale not yet observable",
 starts from the alignment at that frame, the IMU drives it, each tracked pose is a
 :class:`~evp.fusion.measurements.VisualPose` update, and each estimate leaves with the filter's
 metric camera pose, its 6x6 covariance and the flags (the estimator's pose kept in
-``T_visual_cam``). A change of the estimator's reset counter is a jump of the visual poses, not
+``T_visual_cam``). After a visual-inertial start (``refine_scale_after_start``), the scale is
+refined again over every keyframe since the map began on ORB-SLAM3's schedule
+(:mod:`evp.fusion.scale_refinement`) and replaces the filter's when it is known better
+(``scale_refinement`` notices say each outcome). A change of the estimator's reset counter is a jump of the visual poses, not
 motion: a relocalisation keeps the map's scale, a new map (SLAM restarted) forgets it. A jump the
 estimator does not count (a loop correction) shows as visual poses the filter's gate refuses: once
 it has refused all of them for ``visual_jump_reset_s``, the map's pose is re-anchored as after a
@@ -70,6 +73,7 @@ from evp.fusion.measurements import BaroAltitude, GpsPosition, RangeHeight, Visu
 from evp.fusion.nav_state import ATTITUDE, ERROR_DIM, LOG_SCALE, MAP_ATTITUDE, MAP_POSITION, POSITION, VELOCITY, NavState, skew3
 from evp.fusion.navigation_filter import NavigationFilter, NavigationOutput, initial_covariance
 from evp.fusion.preintegration import imu_arrays, preintegrate, samples_between
+from evp.fusion.scale_refinement import ScaleRefinement
 from evp.fusion.visual_inertial_init import InertialAlignment, initialise_visual_inertial
 from evp.fusion.wheel_init import initialise_from_wheels
 from evp.types import BaroSample, Frame, GpsFix, ImuSample, PoseEstimate, RangeSample, TrackingState, WheelOdometry
@@ -113,6 +117,9 @@ START_VELOCITY_POSES = 3
 # -94 km through a barometer its gate refused too).
 RESTART_AFTER_JUMPS = 3
 RESTART_ACCEPTED_POSES = 5
+# The fused kinds under which the filter's scale rests on the IMU and vision alone (heights
+# measure it only through a climb): a refined scale may replace the filter's only then.
+SCALE_FROM_IMU_AND_VISION = {"imu", "visual", "baro", "range", "yaw_rate"}
 # IMU samples kept while waiting to relocalise in a saved map: its start needs the one at or before
 # the relocalised frame, which a frame's telemetry (up to its stamp) always brings in (1 s at 200 Hz).
 SAVED_MAP_IMU_KEPT = 200
@@ -238,6 +245,7 @@ class NavigationStage:
         self._jumps_in_a_row = 0  # re-anchors each followed by fewer than RESTART_ACCEPTED_POSES accepted poses
         self._ahead: tuple[NavState, NavState, ImuSample] | None = None  # (filter state, it carried ahead, last sample): predict's cache
         self.map_fit: MapFit | None = None  # the fit the filter holds while GPS is not trusted
+        self.scale_refinement: ScaleRefinement | None = None  # after a visual-inertial start: the scale measured again
 
     @property
     def warnings(self) -> list[str]:
@@ -290,6 +298,8 @@ class NavigationStage:
                 del self._imu[:-SAVED_MAP_IMU_KEPT]
             return
         self._propagate(sample)
+        if self.scale_refinement is not None:
+            self.scale_refinement.add_imu(sample)
 
     def _propagate(self, sample: ImuSample) -> None:
         warning = self.filter.propagate(sample)
@@ -475,6 +485,8 @@ class NavigationStage:
         visual = self._visual_update(estimate) if tracked else None
         if self.filter is None:  # restarted: it had lost the visual map
             return estimate
+        if tracked and self.scale_refinement is not None:
+            self._refine_scale(estimate)
         output = self.filter.output(self.T_body_cam)
         self.records.append(NavigationRecord(output, visual))
         self.last_tracking_state = estimate.tracking_state
@@ -604,6 +616,8 @@ class NavigationStage:
             return
         keep_scale = estimate.tracking_state is TrackingState.RELOCALIZED
         self.filter.reset_visual_map(estimate.timestamp, keep_scale)
+        if not keep_scale:
+            self.scale_refinement = None  # its keyframes are in the old map
 
     def _collect(self, estimate: PoseEstimate) -> None:
         """Keep the pose as a keyframe when it is far enough after the last, and try to initialise:
@@ -690,6 +704,32 @@ class NavigationStage:
                 return f"{span}, the barometer climbed {climb_baro:.1f} m where the visual-inertial scale ({alignment.scale:.3g} m per map unit) gives {climb_visual:.1f} m"
         return None
 
+    def _refine_scale(self, estimate: PoseEstimate) -> None:
+        """The scale refined again when it is due (:mod:`evp.fusion.scale_refinement`), taken
+        where it is known better than the filter knows it; no more once a sensor that measures
+        the scale on its own (GPS, wheels) has been fused: the refinement stands for what the
+        IMU and vision alone say."""
+        if self.sensors_used - SCALE_FROM_IMU_AND_VISION:
+            self.scale_refinement = None
+            return
+        refinement = self.scale_refinement
+        refinement.add_pose(estimate.timestamp, estimate.T_world_cam)
+        if not refinement.due(estimate.timestamp):
+            return
+        refined = refinement.refine(self.filter.state)
+        if refined.measurement is None:
+            self.notices.append(Notice(refined.timestamp, "info", "scale_refinement", f"scale not refined at {refined.timestamp:.3f} s: {refined.reason}"))
+            return
+        m = refined.measurement
+        known = self.filter.output().scale_sigma
+        if not m.sigma < known:
+            text = f"scale refined at {m.timestamp:.3f} s to {m.scale:.4g} m per map unit +- {100 * m.sigma:.1f} %: not taken, the filter knows it better (+- {100 * known:.1f} %)"
+            self.notices.append(Notice(m.timestamp, "info", "scale_refinement", text))
+            return
+        innovation = self.filter.update(m)
+        text = f"scale refined at {m.timestamp:.3f} s over the map's keyframes: {m.scale:.4g} m per map unit +- {100 * m.sigma:.1f} %, {innovation.status.value}"
+        self.notices.append(Notice(m.timestamp, "info", "scale_refinement", text))
+
     def _start(self, alignment: InertialAlignment, source: str) -> None:
         t, T_map_cam = self._keyframes[-1]
         velocity_map = alignment.velocities_map[-1]
@@ -702,6 +742,8 @@ class NavigationStage:
         self.status = f"initialised at {t:.3f} s from {source}: scale {alignment.scale:.4g} m per map unit"
         self.world_changes += 1
         self.notices.append(Notice(t, "info", "navigation_started", f"navigation filter {self.status}"))
+        if source == "visual-inertial" and self.settings.refine_scale_after_start:
+            self.scale_refinement = ScaleRefinement(self.T_body_cam, self.settings, t, self._keyframes[::-2][::-1], self._imu, self._recent)
         start = next((i for i in range(len(self._imu) - 1, -1, -1) if self._imu[i].timestamp <= t), 0)
         for sample in self._imu[start:]:
             self._propagate(sample)

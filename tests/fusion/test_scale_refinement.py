@@ -16,7 +16,7 @@ from evp.fusion.navigation_filter import NavigationFilter, initial_covariance
 from evp.fusion.scale_refinement import REFINE_AFTER_S, ScaleRefinement
 from evp.types import ImuSample, PoseEstimate, TrackingState
 from tests.fusion.inertial_trajectory import GRAVITY, SinusoidTrajectory, imu_times
-from tests.fusion.test_navigation_filter import MAP_SCALE, R_WORLD_MAP, T_BODY_CAM
+from tests.fusion.test_navigation_filter import MAP_SCALE, R_WORLD_MAP, T_BODY_CAM, T_WORLD_MAP
 from tests.fusion.test_navigation_stage import FRAME_RATE, _run, map_pose
 from tests.fusion.test_visual_inertial_init import GYRO_BIAS, keyframes
 
@@ -122,10 +122,10 @@ def test_a_start_off_by_the_bias_it_neglected_is_corrected_within_seconds():
     assert any("accepted" in text for text in refinements)
 
 
-def test_a_map_whose_scale_changes_over_its_keyframes_is_not_refined_again():
+def test_where_the_map_s_scale_changed_over_its_keyframes_the_newer_half_is_refined():
     """A downward camera climbing changes SLAM's map scale as it goes; one scale fitted to all
-    the keyframes is then wrong however small its sigma: the newer half disagrees, and no
-    refinement on this map is taken."""
+    the keyframes is then none of them, however small its sigma: the newer half disagrees, and
+    its scale is the answer; the older keyframes are left out from then on."""
     imu = SLOW.imu(imu_times(8.0), GYRO_BIAS, ACCEL_BIAS)
     frames = []
     for t, T in keyframes(SLOW, np.arange(0.0, 8.0001, 0.1)):
@@ -139,5 +139,22 @@ def test_a_map_whose_scale_changes_over_its_keyframes_is_not_refined_again():
         refinement.add_pose(t, T)
         if refinement.due(t):
             outcomes.append(refinement.refine(seed))
-    assert outcomes[-1].measurement is None and "scale changed" in outcomes[-1].reason
-    assert refinement.finished
+    changed = next(o for o in outcomes if "scale changed" in o.reason)
+    first, last = changed.reason.split("from ")[1].split(" s")[0], changed.timestamp
+    newer_scale = MAP_SCALE * (1.0 + 0.03 * 0.5 * (float(first) + last))  # the newer half's mean
+    assert changed.measurement.scale == pytest.approx(newer_scale, rel=0.02)
+    assert refinement.span_start >= float(first)
+
+
+def test_a_jump_of_the_map_ends_the_refinements():
+    """A loop correction moves SLAM's poses (here 3 m, unannounced): the keyframes kept before it
+    are placed as the map was, and a refinement across them would be garbage."""
+    trajectory = SinusoidTrajectory()
+    times = np.arange(0.0, 6.0, 1.0 / FRAME_RATE)
+    moved = {"t_world_map": T_WORLD_MAP + [3.0, 0.0, 0.0]}
+    estimates = [PoseEstimate(float(t), map_pose(trajectory, t, **(moved if t >= 2.5 else {})), TrackingState.OK) for t in times]
+    settings = NavigationSettings(vi_init_accel_bias_sigma=0.0, visual_jump_reset_s=0.5)
+    stage, _ = _run(estimates, trajectory.imu(imu_times(6.0)), settings=settings)
+    refinements = [n.timestamp for n in stage.notices if n.code == "scale_refinement"]
+    assert refinements and max(refinements) < 2.5 and stage.scale_refinement is None
+    assert abs(stage.records[-1].output.scale / MAP_SCALE - 1.0) < 0.01

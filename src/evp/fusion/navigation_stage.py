@@ -514,6 +514,7 @@ class NavigationStage:
             self._restart(estimate.timestamp)
             return innovation
         self.filter.reset_visual_map(estimate.timestamp, keep_scale=True)
+        self.scale_refinement = None  # its keyframes are placed as before the jump
         self._map_pairs.clear()
         text = f"visual poses refused since {estimate.timestamp - self.settings.visual_jump_reset_s:.3f} s: the visual map jumped; its pose re-anchored at {estimate.timestamp:.3f} s"
         self._warn(estimate.timestamp, "visual_jump", text)
@@ -616,8 +617,7 @@ class NavigationStage:
             return
         keep_scale = estimate.tracking_state is TrackingState.RELOCALIZED
         self.filter.reset_visual_map(estimate.timestamp, keep_scale)
-        if not keep_scale:
-            self.scale_refinement = None  # its keyframes are in the old map
+        self.scale_refinement = None  # its keyframes are placed as before the jump
 
     def _collect(self, estimate: PoseEstimate) -> None:
         """Keep the pose as a keyframe when it is far enough after the last, and try to initialise:
@@ -727,7 +727,8 @@ class NavigationStage:
             self.notices.append(Notice(m.timestamp, "info", "scale_refinement", text))
             return
         innovation = self.filter.update(m)
-        text = f"scale refined at {m.timestamp:.3f} s over the map's keyframes: {m.scale:.4g} m per map unit +- {100 * m.sigma:.1f} %, {innovation.status.value}"
+        span = f"; {refined.reason}" if refined.reason else ""
+        text = f"scale refined at {m.timestamp:.3f} s over the map's keyframes: {m.scale:.4g} m per map unit +- {100 * m.sigma:.1f} %, {innovation.status.value}{span}"
         self.notices.append(Notice(m.timestamp, "info", "scale_refinement", text))
 
     def _start(self, alignment: InertialAlignment, source: str) -> None:

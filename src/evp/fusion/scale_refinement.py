@@ -20,6 +20,12 @@ rendered 300 s flight, 5.2 -> 5.4 m per unit between 30 and 80 s). The stage tak
 only while the filter's scale rests on the IMU and vision (no GPS fix or wheel speed fused yet),
 and only where its sigma is below the filter's.
 
+Where the map's scale is not one number over the keyframes (a downward camera's climb: SLAM's map
+scale changes with the height), one scale fitted to all of them is none of them however small its
+sigma (the 300 s flight's climb: 5.16 +- 0.5 % over all, 5.59 +- 0.6 % over the newer half, the
+truth at cruise 5.49). The refinement over the newer half is compared with the whole's; beyond
+CONSISTENCY_SIGMAS the newer half's is the answer and the older keyframes are left out from then on.
+
 Pure: poses and IMU samples in, a measurement (or the reason there is none) out.
 """
 
@@ -40,10 +46,9 @@ from evp.types import ImuSample
 
 # seconds after the filter's start at which the scale is refined again (ORB-SLAM3's schedule)
 REFINE_AFTER_S = (1.0, 2.5, 5.0, 15.0)
-# A refinement is refused when its newer half's scale differs from the whole's by more than this
-# many sigmas of their difference: SLAM's map scale changed over the keyframes (the rendered
-# drone's climb, a downward camera: 5.16 over all against 5.59 over the newer half, 24 sigmas; the
-# circles and EuRoC MH01 within 1.2)
+# The newer half's scale replaces the whole's when they differ by more than this many sigmas of
+# their difference: SLAM's map scale changed over the keyframes (the rendered drone's climb, a
+# downward camera: 24 sigmas; the circles and EuRoC MH01 within 1.2)
 CONSISTENCY_SIGMAS = 3.0
 # keyframes kept 0.5 s apart from the map's first: 15 s after a start 30 s in
 MAX_KEYFRAMES = 90
@@ -53,7 +58,8 @@ NOISE_POSES = 60  # the newest tracked poses whose second differences give the p
 
 @dataclass(frozen=True)
 class Refined:
-    """One refinement's outcome: ``measurement`` to fuse, or None and ``reason``."""
+    """One refinement's outcome: ``measurement`` to fuse, or None and ``reason``; with a
+    measurement, ``reason`` says why it spans fewer keyframes than the map has."""
 
     timestamp: float
     measurement: RefinedScale | None
@@ -76,6 +82,12 @@ class ScaleRefinement:
     @property
     def finished(self) -> bool:
         return self._next >= len(REFINE_AFTER_S)
+
+    @property
+    def span_start(self) -> float:
+        """The time of the first keyframe a refinement spans (the map's first, until its scale
+        was found to have changed since)."""
+        return self._keyframes[0][0]
 
     def add_imu(self, sample: ImuSample) -> None:
         if not self.finished:
@@ -112,27 +124,27 @@ class ScaleRefinement:
         t = keyframes[-1][0]
         if not alignment.observable:
             return Refined(t, None, alignment.reason)
-        changed = self._scale_changed(keyframes, alignment, noise)
-        if changed:  # every later refinement spans the same keyframes: none is taken for this map
-            self._next = len(REFINE_AFTER_S)
-            return Refined(t, None, f"{changed}; no more refinements on this map")
-        return Refined(t, RefinedScale(t, alignment.scale, alignment.scale_sigma, self.T_body_cam))
+        newer, changed = self._newer_half(keyframes, alignment, noise)
+        if changed:  # the older half's scale was another: the span starts at the newer half from now on
+            del self._keyframes[: len(keyframes) // 2]
+            alignment = newer
+        return Refined(t, RefinedScale(t, alignment.scale, alignment.scale_sigma, self.T_body_cam), changed)
 
-    def _scale_changed(self, keyframes, alignment: InertialAlignment, noise) -> str:
-        """Why the map's scale is not one number over ``keyframes`` (empty when it is): the
-        refinement over their newer half differs from ``alignment`` (over all of them) by more
-        than CONSISTENCY_SIGMAS of the difference of two nested estimates (its variance is the
-        half's minus the whole's)."""
+    def _newer_half(self, keyframes, alignment: InertialAlignment, noise) -> tuple[InertialAlignment | None, str]:
+        """The refinement over the newer half of ``keyframes`` and why the map's scale is not one
+        number over all of them, when it differs from ``alignment`` (over all) by more than
+        CONSISTENCY_SIGMAS of the difference of two nested estimates (its variance is the half's
+        minus the whole's); else (None, "")."""
         half = keyframes[len(keyframes) // 2 :]
         if len(half) < self.settings.vi_init_min_keyframes:
-            return ""
+            return None, ""
         newer = refine_inertial(half, self._imu, self.T_body_cam, alignment, self.settings, position_sigma_map=noise)
         if not newer.observable:
-            return ""
+            return None, ""
         spread = math.sqrt(max(newer.scale_sigma**2 - alignment.scale_sigma**2, 0.0))
         if abs(math.log(newer.scale / alignment.scale)) <= CONSISTENCY_SIGMAS * spread:
-            return ""
-        return (
-            f"the map's scale changed over its keyframes: {alignment.scale:.4g} m per map unit +- {100 * alignment.scale_sigma:.1f} % over all, "
-            f"{newer.scale:.4g} +- {100 * newer.scale_sigma:.1f} % over the newer half"
+            return None, ""
+        return newer, (
+            f"the map's scale changed over its keyframes ({alignment.scale:.4g} m per map unit +- {100 * alignment.scale_sigma:.1f} % over all): "
+            f"over the newer half, from {half[0][0]:.3f} s on"
         )

@@ -43,7 +43,7 @@ import numpy as np
 
 from evp.config import NavigationSettings
 from evp.fusion.innovation import Innovation, UpdateStatus, gated_innovation
-from evp.fusion.measurements import BaroAltitude, GpsPosition, RefinedScale, Measurement, Refusal, VisualPose
+from evp.fusion.measurements import BaroAltitude, GpsPosition, Measurement, RefinedScale, Refusal, VisualPose
 from evp.fusion.nav_state import (
     ACCEL_BIAS,
     ATTITUDE,

@@ -12,11 +12,11 @@ starts from the alignment at that frame, the IMU drives it, each tracked pose is
 :class:`~evp.fusion.measurements.VisualPose` update, and each estimate leaves with the filter's
 metric camera pose, its 6x6 covariance and the flags (the estimator's pose kept in
 ``T_visual_cam``). After a visual-inertial start (``refine_scale_after_start``), the scale is
-refined again over every keyframe since the map began on ORB-SLAM3's schedule
-(:mod:`evp.fusion.scale_refinement`) and replaces the filter's when it is known better
-(``scale_refinement`` notices say each outcome). A change of the estimator's reset counter is a jump of the visual poses, not
-motion: a relocalisation keeps the map's scale, a new map (SLAM restarted) forgets it. A jump the
-estimator does not count (a loop correction) shows as visual poses the filter's gate refuses: once
+refined again over the keyframes since the map began, 1, 2.5, 5 and 15 s after the start
+(:mod:`evp.fusion.scale_refinement`), and replaces the filter's where it is known better
+(``scale_refinement`` notices say each outcome). A change of the estimator's reset counter is a
+jump of the visual poses, not motion: a relocalisation keeps the map's scale, a new map (SLAM
+restarted) forgets it. A jump the estimator does not count (a loop correction) shows as visual poses the filter's gate refuses: once
 it has refused all of them for ``visual_jump_reset_s``, the map's pose is re-anchored as after a
 relocalisation (``visual_jump`` warning). Re-anchors that follow one another with hardly a pose
 accepted between them are not the map jumping but the filter lost (its velocity or attitude
@@ -721,7 +721,7 @@ class NavigationStage:
             self.notices.append(Notice(refined.timestamp, "info", "scale_refinement", f"scale not refined at {refined.timestamp:.3f} s: {refined.reason}"))
             return
         m = refined.measurement
-        known = self.filter.output().scale_sigma
+        known = math.sqrt(self.filter.covariance[LOG_SCALE, LOG_SCALE])  # relative: d(log s)
         if not m.sigma < known:
             text = f"scale refined at {m.timestamp:.3f} s to {m.scale:.4g} m per map unit +- {100 * m.sigma:.1f} %: not taken, the filter knows it better (+- {100 * known:.1f} %)"
             self.notices.append(Notice(m.timestamp, "info", "scale_refinement", text))

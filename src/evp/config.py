@@ -379,7 +379,7 @@ class NavigationSettings(_Section):
     )
     refine_scale_after_start: bool = Field(
         True,
-        description="after a visual-inertial start, the inertial refinement over every keyframe since the map began is run again 1, 2.5, 5 and 15 s after it (ORB-SLAM3's re-runs at 5 and 15 s, two earlier for our earlier start) and its scale replaces the filter's where it is known better, while no GPS fix or wheel speed has been fused and the map's scale is one number over the keyframes (evp.fusion.scale_refinement): a start on a slow walk's barely determined scale is corrected within seconds (rendered circle seed 2: 22 % off at the start, -4.6 % after 23 s without, +2 % from 4.5 s on with)",
+        description="after a visual-inertial start, the inertial refinement over the keyframes kept since the map began is run again 1, 2.5, 5 and 15 s after it (ORB-SLAM3's re-runs at 5 and 15 s, two earlier for our earlier start) and its scale replaces the filter's where it is known better, while no GPS fix or wheel speed has been fused and the map's scale is one number over the keyframes (evp.fusion.scale_refinement): a start on a slow walk's barely determined scale is corrected within seconds (rendered circle seed 2: 22 % off at the start, -4.6 % after 23 s without, +2 % from 4.5 s on with)",
     )
     vi_init_refine: bool = Field(
         True,

@@ -11,7 +11,7 @@ import pytest
 from evp.config import NavigationSettings
 from evp.fusion.innovation import UpdateStatus
 from evp.fusion.measurements import RefinedScale, VisualPose
-from evp.fusion.nav_state import LOG_SCALE, POSITION, NavState
+from evp.fusion.nav_state import ERROR_DIM, LOG_SCALE, POSITION, NavState
 from evp.fusion.navigation_filter import NavigationFilter, initial_covariance
 from evp.fusion.scale_refinement import REFINE_AFTER_S, ScaleRefinement
 from evp.types import ImuSample, PoseEstimate, TrackingState
@@ -25,7 +25,7 @@ ACCEL_BIAS = np.array([0.15, -0.2, 0.1])
 SLOW = SinusoidTrajectory(amplitude=(1.0, 0.7, 0.2), cruise=(0.3, 0.1, 0.0))
 
 
-def _anchored_filter(scale: float, scale_sigma: float) -> NavigationFilter:
+def _anchored_filter(scale: float, scale_sigma: float, covariance: np.ndarray | None = None) -> NavigationFilter:
     at_rest = ImuSample(0.0, (0.0, 0.0, 0.0), (0.0, 0.0, GRAVITY))
     state = NavState(
         0.0,
@@ -37,8 +37,9 @@ def _anchored_filter(scale: float, scale_sigma: float) -> NavigationFilter:
         t_world_map=np.array([0.3, 0.2, 0.1]),
         map_anchored=True,
     )
-    P = initial_covariance(NavigationSettings())
-    P[LOG_SCALE, LOG_SCALE] = scale_sigma**2
+    P = initial_covariance(NavigationSettings()) if covariance is None else covariance
+    P[POSITION, POSITION] = np.eye(3) * 1e-4 if covariance is None else P[POSITION, POSITION]
+    P[LOG_SCALE, LOG_SCALE] = scale_sigma**2 if covariance is None else P[LOG_SCALE, LOG_SCALE]
     nav = NavigationFilter(state, NavigationSettings(), P)
     nav.propagate(at_rest)
     return nav
@@ -57,10 +58,25 @@ def test_a_refined_scale_replaces_the_filters_and_the_body_stays_where_the_map_h
     # the camera's place in the map and the velocity through it are the same: they grew with the scale
     assert np.allclose(seen.linearise(after, np.zeros(3), nav.settings).residual, predicted, atol=1e-12)
     assert np.allclose(after.velocity, 1.2 * before.velocity)
-    # the position's uncertainty along the camera's offset is now the new scale's
+    # the position's uncertainty along the camera's offset is now the new scale's (it was 1 cm)
     offset = after.position + T_BODY_CAM[:3, 3] - after.t_world_map
     along = offset / np.linalg.norm(offset)
-    assert along @ nav.covariance[POSITION, POSITION] @ along >= (0.02 * np.linalg.norm(offset)) ** 2
+    assert along @ nav.covariance[POSITION, POSITION] @ along == pytest.approx(1e-4 + (0.02 * np.linalg.norm(offset)) ** 2, rel=0.01)
+
+
+def test_the_body_stays_where_the_map_has_it_whatever_the_filter_s_correlations():
+    """After visual updates the scale's error is correlated with the map's pose and the body's
+    attitude; those stay, and the camera's pose in the map is predicted as before."""
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(ERROR_DIM, ERROR_DIM)) * 0.05
+    nav = _anchored_filter(scale=3.0, scale_sigma=0.1, covariance=A @ A.T + np.eye(ERROR_DIM) * 1e-4)
+    before = nav.state
+    seen = VisualPose(0.0, np.eye(4), T_BODY_CAM)
+    predicted = seen.linearise(before, np.zeros(3), nav.settings).residual
+    nav.update(RefinedScale(0.0, 3.6, 0.02, T_BODY_CAM))
+    assert nav.state.scale == pytest.approx(3.6, rel=1e-12)
+    assert np.allclose(seen.linearise(nav.state, np.zeros(3), nav.settings).residual, predicted, atol=1e-12)
+    assert np.all(np.linalg.eigvalsh(nav.covariance) > 0)
 
 
 def test_a_held_scale_is_not_replaced():

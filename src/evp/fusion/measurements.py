@@ -100,7 +100,7 @@ class VisualPose:
 @dataclass(frozen=True)
 class RefinedScale:
     """The visual map's scale (metres per map unit) with its relative 1-sigma, estimated apart
-    from the filter: the inertial refinement over every keyframe since the map began
+    from the filter: the inertial refinement over the keyframes kept since the map began
     (:mod:`evp.fusion.scale_refinement`)."""
 
     timestamp: float
@@ -118,17 +118,21 @@ class RefinedScale:
         H[0, LOG_SCALE] = 1.0
         return Linearisation(np.array([math.log(self.scale) - x.log_scale]), H, np.array([[self.sigma**2]]))
 
-    def carried(self, x: NavState) -> tuple[np.ndarray, np.ndarray]:
-        """The states that move with the scale by geometry, not by the filter's correlations, and
-        their change per unit of the log scale: with the body kept where the map has it, the
-        camera's offset from the map's origin and the velocity (both seen through the map) grow
-        with the scale, by ``exp(r) - 1`` for a change ``r`` of the log scale (so that the step to
-        this scale is exact, not first order)."""
+    def carried(self, x: NavState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The states that move with the scale by geometry, not by the filter's correlations:
+        with the body kept where the map has it, the camera's offset from the map's origin and the
+        velocity (both seen through the map) grow with the scale, and the body's attitude and the
+        map's pose stay. Returns the states, their change for this step (by ``exp(r) - 1`` for a
+        change ``r`` of the log scale: exact, not first order) and their change per unit of the log
+        scale at the new one (for its uncertainty)."""
         change = math.log(self.scale) - x.log_scale
         growth = math.expm1(change) / change if abs(change) > 1e-12 else 1.0
         offset = x.position + x.R_world_body @ self.T_body_cam[:3, 3] - x.t_world_map
-        states = np.r_[LOG_SCALE, POSITION.start : POSITION.stop, VELOCITY.start : VELOCITY.stop]
-        return states, np.r_[1.0, growth * offset, growth * x.velocity][:, None]
+        states = np.r_[LOG_SCALE, POSITION, VELOCITY, ATTITUDE, MAP_ATTITUDE, MAP_POSITION]
+        kept = np.zeros(9)
+        step = np.r_[1.0, growth * offset, growth * x.velocity, kept][:, None]
+        sensitivity = np.r_[1.0, math.exp(change) * offset, math.exp(change) * x.velocity, kept][:, None]
+        return states, step, sensitivity
 
 
 @dataclass(frozen=True)

@@ -462,21 +462,26 @@ class NavigationFilter:
             x = replace(x, georeferenced=True)
         return innovation, x, P
 
-    def _replace_marginal(self, x: NavState, P: np.ndarray, H: np.ndarray, r: np.ndarray, noise: np.ndarray, carried: tuple[np.ndarray, np.ndarray]) -> tuple[NavState, np.ndarray]:
+    def _replace_marginal(
+        self, x: NavState, P: np.ndarray, H: np.ndarray, r: np.ndarray, noise: np.ndarray, carried: tuple[np.ndarray, np.ndarray, np.ndarray]
+    ) -> tuple[NavState, np.ndarray]:
         """The filter's estimate of ``H x`` replaced by the measurement (``r``: measured minus
         predicted, ``noise``: its covariance), for an estimate made from the same data as the
         filter's (the inertial refinement of the scale over the IMU the filter integrated), where
         fusing both as independent would count that data twice and leave the filter's own, worse
         answer a say. The joint becomes the filter's distribution of the rest given ``H x`` times
         the measurement's of ``H x``: every state moves with ``H x`` by its regression on it in
-        the filter's covariance, except the states ``carried`` names (indices, and their change per
-        unit of ``H x``, one column per row of ``H``), which move as it says."""
+        the filter's covariance, except the states ``carried`` names (indices, their change for
+        this step and per unit of ``H x`` at the new value, one column per row of ``H``), which
+        move as it says; held states do not move."""
         C = P @ H.T
         regression = np.linalg.solve(H @ C, C.T).T  # each state's change per unit of H x, as the filter has it
-        states, change = carried
-        regression[states] = change
-        P = P - C @ np.linalg.solve(H @ C, C.T) + regression @ noise @ regression.T  # given H x, then H x's new spread
-        return x.inject(regression @ r), 0.5 * (P + P.T)
+        states, step, sensitivity = carried
+        moved, spread = regression.copy(), regression.copy()
+        moved[states], spread[states] = step, sensitivity
+        moved[self._held], spread[self._held] = 0.0, 0.0
+        P = P - C @ np.linalg.solve(H @ C, C.T) + spread @ noise @ spread.T  # given H x, then H x's new spread
+        return x.inject(moved @ r), 0.5 * (P + P.T)
 
     def _start_gps_error(self, x: NavState, P: np.ndarray, fix: GpsPosition) -> tuple[NavState, np.ndarray]:
         """The GPS error state at the first fix: zero, uncorrelated, at the stationary variance of

@@ -117,8 +117,9 @@ START_VELOCITY_POSES = 3
 # -94 km through a barometer its gate refused too).
 RESTART_AFTER_JUMPS = 3
 RESTART_ACCEPTED_POSES = 5
-# The fused kinds under which the filter's scale rests on the IMU and vision alone (heights
-# measure it only through a climb): a refined scale may replace the filter's only then.
+# The fused kinds under which the filter's scale rests on the IMU and vision (heights measure it
+# only through a climb, and the refinement's sigma is then compared with what they gave the
+# filter): a refined scale may replace the filter's only while nothing else was fused.
 SCALE_FROM_IMU_AND_VISION = {"imu", "visual", "baro", "range", "yaw_rate"}
 # IMU samples kept while waiting to relocalise in a saved map: its start needs the one at or before
 # the relocalised frame, which a frame's telemetry (up to its stamp) always brings in (1 s at 200 Hz).
@@ -246,6 +247,7 @@ class NavigationStage:
         self._ahead: tuple[NavState, NavState, ImuSample] | None = None  # (filter state, it carried ahead, last sample): predict's cache
         self.map_fit: MapFit | None = None  # the fit the filter holds while GPS is not trusted
         self.scale_refinement: ScaleRefinement | None = None  # after a visual-inertial start: the scale measured again
+        self._fused_since_start: set[str] = set()  # the measurement kinds this filter has fused
 
     @property
     def warnings(self) -> list[str]:
@@ -455,6 +457,7 @@ class NavigationStage:
         innovation = self.filter.update(measurement)
         if innovation.accepted:
             self.sensors_used.add(measurement.kind)
+            self._fused_since_start.add(measurement.kind)
         return innovation
 
     # --- estimates -----------------------------------------------------------------------------
@@ -485,7 +488,7 @@ class NavigationStage:
         visual = self._visual_update(estimate) if tracked else None
         if self.filter is None:  # restarted: it had lost the visual map
             return estimate
-        if tracked and self.scale_refinement is not None:
+        if visual is not None and visual.accepted and self.scale_refinement is not None:  # a pose the gate refused may be a jumped map's
             self._refine_scale(estimate)
         output = self.filter.output(self.T_body_cam)
         self.records.append(NavigationRecord(output, visual))
@@ -709,7 +712,7 @@ class NavigationStage:
         where it is known better than the filter knows it; no more once a sensor that measures
         the scale on its own (GPS, wheels) has been fused: the refinement stands for what the
         IMU and vision alone say."""
-        if self.sensors_used - SCALE_FROM_IMU_AND_VISION:
+        if self._fused_since_start - SCALE_FROM_IMU_AND_VISION:
             self.scale_refinement = None
             return
         refinement = self.scale_refinement

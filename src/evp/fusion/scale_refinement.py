@@ -1,7 +1,9 @@
 """The visual map's scale measured again after the filter has started: ORB-SLAM3's inertial-only
 optimisations after its initialisation, here the maximum-likelihood refinement
-(:func:`~evp.fusion.inertial_refinement.refine_inertial`) over every keyframe since the map
-began, seeded by the filter's own scale and gravity, its answer fused as a :class:`RefinedScale`.
+(:func:`~evp.fusion.inertial_refinement.refine_inertial`) over the keyframes kept since the map
+began (those the start's own refinement had, up to 30 s, every other one; then one each 0.5 s, at
+most MAX_KEYFRAMES, the first always kept), seeded by the filter's own scale and gravity, its
+answer fused as a :class:`RefinedScale`.
 
 Why: a visual-inertial start takes the first window whose scale is determined well enough to
 start a filter (10 %); on a slow walk the motion barely tells the scale from an accelerometer
@@ -59,7 +61,7 @@ NOISE_POSES = 60  # the newest tracked poses whose second differences give the p
 @dataclass(frozen=True)
 class Refined:
     """One refinement's outcome: ``measurement`` to fuse, or None and ``reason``; with a
-    measurement, ``reason`` says why it spans fewer keyframes than the map has."""
+    measurement, ``reason`` says when it spans only the newer half (the map's scale changed)."""
 
     timestamp: float
     measurement: RefinedScale | None
@@ -99,7 +101,7 @@ class ScaleRefinement:
         self._recent.append((timestamp, T_map_cam))
         if not self._keyframes or timestamp - self._keyframes[-1][0] >= KEYFRAME_INTERVAL_S:
             self._keyframes.append((timestamp, T_map_cam))
-            if len(self._keyframes) > MAX_KEYFRAMES:  # keep the first: the standing start is what separates scale and bias
+            if len(self._keyframes) > MAX_KEYFRAMES:  # thinned after the first: the standing start is what separates scale and bias
                 del self._keyframes[1]
             oldest = self._keyframes[0][0]
             keep = next((i for i, sample in enumerate(self._imu) if sample.timestamp >= oldest), len(self._imu))
@@ -109,7 +111,7 @@ class ScaleRefinement:
         return not self.finished and timestamp - self.started_at >= REFINE_AFTER_S[self._next]
 
     def refine(self, state: NavState) -> Refined:
-        """The scale over every keyframe since the map began, seeded by the filter's ``state``;
+        """The scale over the kept keyframes an IMU sample reaches, seeded by the filter's ``state``;
         the next refinement is scheduled whatever the outcome."""
         self._next += 1
         while not self.finished and self._keyframes[-1][0] - self.started_at >= REFINE_AFTER_S[self._next]:
@@ -141,7 +143,7 @@ class ScaleRefinement:
         newer = refine_inertial(half, self._imu, self.T_body_cam, alignment, self.settings, position_sigma_map=noise)
         if not newer.observable:
             return None, ""
-        spread = math.sqrt(max(newer.scale_sigma**2 - alignment.scale_sigma**2, 0.0))
+        spread = math.sqrt(max(newer.scale_sigma**2 - alignment.scale_sigma**2, alignment.scale_sigma**2))  # at least the whole's own
         if abs(math.log(newer.scale / alignment.scale)) <= CONSISTENCY_SIGMAS * spread:
             return None, ""
         return newer, (

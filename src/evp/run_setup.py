@@ -268,8 +268,17 @@ def refine_and_write(result: RunResult, navigation: NavigationStage | None, esti
     settings ask for it, and the outputs in ``out``; returns the metrics written."""
     from evp.io.run_outputs import write_outputs
 
-    result.final_trajectory()
-    refined_navigation = None
-    if navigation is not None and settings.navigation.refine_offline and result.refined is not None and len(result.refined) >= 2:
-        refined_navigation = navigation_on_refined(dataset, settings, result.refined, bool(getattr(estimator, "in_saved_map", False)), result.estimates)
+    refined_navigation = offline_navigation(result, navigation, estimator, dataset, settings)
     return write_outputs(result, dataset, settings, out, navigation, refined_navigation)
+
+
+def offline_navigation(
+    result: RunResult, navigation: NavigationStage | None, estimator: Estimator, dataset: Dataset, settings: Settings
+) -> tuple[RunResult, NavigationStage] | None:
+    """After the last frame: the estimator's refinement (a global bundle adjustment; seconds),
+    then, when the run had a navigation stage and ``navigation.refine_offline`` asks for it, the
+    stage again over the refined trajectory (:func:`navigation_on_refined`); None otherwise."""
+    result.final_trajectory()
+    if navigation is None or not settings.navigation.refine_offline or result.refined is None or len(result.refined) < 2:
+        return None
+    return navigation_on_refined(dataset, settings, result.refined, bool(getattr(estimator, "in_saved_map", False)), result.estimates)

@@ -28,7 +28,7 @@ from evp.fusion.gps_input import clean_gps
 from evp.io.navigation_outputs import georeferenced_trajectory, truth_in_enu
 from evp.io.registry import open_dataset
 from evp.pipeline import run_dataset
-from evp.run_setup import camera_for, make_estimator, navigation_on_refined, navigation_stage, resolve_settings
+from evp.run_setup import camera_for, make_estimator, navigation_stage, offline_navigation, resolve_settings
 from evp.sim.generate import generate
 from evp.sim.scenarios import SimOptions
 
@@ -156,7 +156,8 @@ def fly(flight: str, duration_s: float, altitude_m: float, speed_m_s: float, fps
         estimator = make_estimator(camera_for(denied, settings), settings, denied)
         stage = navigation_stage(denied, settings, estimator)
         run = run_dataset(denied, estimator, realtime_speed=1.0 if online else None, stages=[stage] if stage is not None else [])
-        fused_run = run if online else _offline_navigation(denied, settings, run)
+        offline = None if online else offline_navigation(run, stage, estimator, denied, settings)  # as evp run writes a recording
+        fused_run = run if offline is None else offline[0]
     segments = run.segments()
     start = truth.positions[0, :2]
     record: dict = {
@@ -189,17 +190,6 @@ def fly(flight: str, duration_s: float, altitude_m: float, speed_m_s: float, fps
     record["fused"] = _fused_scores(georeferenced_trajectory(fused_run), gps, phase_end, truth, altitude_m)
     record["fused_pass"] = "live" if fused_run is run else "refined"
     return record
-
-
-def _offline_navigation(dataset, settings: Settings, run):
-    """EVP's offline answer for a recorded flight, as ``evp run`` writes it: the navigation
-    stage again over SLAM's refined trajectory (final bundle adjustment, loops closed), with the
-    same telemetry; the live run where SLAM offers no refinement."""
-    run.final_trajectory()
-    if run.refined is None or len(run.refined) < 2:
-        return run
-    again = navigation_on_refined(dataset, settings, run.refined, live=run.estimates)
-    return run if again is None else again[0]
 
 
 def _paper_scores(errors: np.ndarray, heights: np.ndarray, target_m: float) -> dict:

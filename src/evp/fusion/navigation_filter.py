@@ -480,7 +480,7 @@ class NavigationFilter:
         moved, spread = regression.copy(), regression.copy()
         moved[states], spread[states] = step, sensitivity
         moved[self._held], spread[self._held] = 0.0, 0.0
-        P = P - C @ np.linalg.solve(H @ C, C.T) + spread @ noise @ spread.T  # given H x, then H x's new spread
+        P = P - regression @ C.T + spread @ noise @ spread.T  # given H x, then H x's new spread
         return x.inject(moved @ r), 0.5 * (P + P.T)
 
     def _start_gps_error(self, x: NavState, P: np.ndarray, fix: GpsPosition) -> tuple[NavState, np.ndarray]:

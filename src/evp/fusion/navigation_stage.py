@@ -72,7 +72,7 @@ from evp.fusion.map_georeference import MapGeoreference
 from evp.fusion.measurements import BaroAltitude, GpsPosition, RangeHeight, VisualPose, WheelSpeed, YawRate
 from evp.fusion.nav_state import ATTITUDE, ERROR_DIM, LOG_SCALE, MAP_ATTITUDE, MAP_POSITION, POSITION, VELOCITY, NavState, skew3
 from evp.fusion.navigation_filter import NavigationFilter, NavigationOutput, initial_covariance
-from evp.fusion.preintegration import imu_arrays, preintegrate, samples_between
+from evp.fusion.preintegration import drop_before, imu_arrays, preintegrate, samples_between
 from evp.fusion.scale_refinement import ScaleRefinement
 from evp.fusion.visual_inertial_init import InertialAlignment, initialise_visual_inertial
 from evp.fusion.wheel_init import initialise_from_wheels
@@ -639,10 +639,8 @@ class NavigationStage:
             self._map_start = self._keyframes[-1]
         del self._keyframes[: -(REFINE_KEYFRAMES if s.vi_init_refine else s.vi_init_window_keyframes * VI_INIT_STRIDES[-1])]
         oldest = self._keyframes[0][0]
-        keep = next((i for i, sample in enumerate(self._imu) if sample.timestamp >= oldest), len(self._imu))
-        del self._imu[: max(0, keep - 1)]  # one sample at or before the oldest keyframe stays
-        keep = next((i for i, w in enumerate(self._wheel) if w.timestamp >= oldest), len(self._wheel))
-        del self._wheel[: max(0, keep - 1)]  # likewise one wheel record
+        drop_before(self._imu, oldest)
+        drop_before(self._wheel, oldest)
         reasons, refined = [], False
         for stride in VI_INIT_STRIDES:
             window = self._keyframes[::-stride][: s.vi_init_window_keyframes][::-1]
@@ -720,6 +718,8 @@ class NavigationStage:
         if not refinement.due(estimate.timestamp):
             return
         refined = refinement.refine(self.filter.state)
+        if refinement.finished:
+            self.scale_refinement = None  # its keyframes and IMU are not needed any more
         if refined.measurement is None:
             self.notices.append(Notice(refined.timestamp, "info", "scale_refinement", f"scale not refined at {refined.timestamp:.3f} s: {refined.reason}"))
             return

@@ -57,6 +57,13 @@ def imu_spans(times: np.ndarray, t0: float, t1: float) -> bool:
     return times[0] <= t0 + period and times[-1] >= t1 - period
 
 
+def drop_before(records: list, t: float) -> None:
+    """Drop the time-ordered ``records`` (anything with a ``timestamp``) older than ``t``, all but
+    the newest of them: an interval starting at ``t`` interpolates from the one at or before it."""
+    keep = next((i for i, record in enumerate(records) if record.timestamp >= t), len(records))
+    del records[: max(0, keep - 1)]
+
+
 def samples_between(times: np.ndarray, gyro: np.ndarray, accel: np.ndarray, t0: float, t1: float):
     """The IMU readings in [t0, t1], with readings interpolated linearly at t0 and t1 (the nearest
     reading held outside the samples)."""

@@ -43,6 +43,7 @@ from evp.config import NavigationSettings
 from evp.fusion.inertial_refinement import refine_inertial, white_position_noise
 from evp.fusion.measurements import RefinedScale
 from evp.fusion.nav_state import NavState
+from evp.fusion.preintegration import drop_before
 from evp.fusion.visual_inertial_init import InertialAlignment
 from evp.types import ImuSample
 
@@ -103,9 +104,7 @@ class ScaleRefinement:
             self._keyframes.append((timestamp, T_map_cam))
             if len(self._keyframes) > MAX_KEYFRAMES:  # thinned after the first: the standing start is what separates scale and bias
                 del self._keyframes[1]
-            oldest = self._keyframes[0][0]
-            keep = next((i for i, sample in enumerate(self._imu) if sample.timestamp >= oldest), len(self._imu))
-            del self._imu[: max(0, keep - 1)]
+            drop_before(self._imu, self._keyframes[0][0])
 
     def due(self, timestamp: float) -> bool:
         return not self.finished and timestamp - self.started_at >= REFINE_AFTER_S[self._next]

@@ -72,6 +72,22 @@ def test_noise_free_tracking_has_near_zero_error(circle, tmp_path):
     assert f"element vertex {len(slam.map.points)}" in (tmp_path / "map.ply").read_text()
 
 
+def test_each_answer_tells_the_depth_of_the_scene_it_was_tracked_on(circle):
+    """A keyframe made on a frame is mapped before the next frame, so that frame's answer once
+    told a made-up depth of 1 map unit (the filter sizes a visual pose's noise by it): it tells
+    its matched points' depth, which the keyframe has once mapped."""
+    dataset, frames = circle
+    slam = SlamSystem(dataset.camera, OrbSettings(n_features=1000), SlamSettings(mapping="inline", initial_median_depth_m=4.0), vocabulary=VOCABULARY)
+    estimates = [slam.feed(frame) for frame in frames]
+    slam.finish()
+    tracked = [e for e in estimates if e.tracking_state.tracked]
+    assert all(e.scene_depth is not None and e.scene_depth > 0 for e in tracked)
+    keyframe_depth = {kf.timestamp: slam.map.median_depth(kf) for kf in slam.map.keyframes.values()}
+    ratios = [e.scene_depth / keyframe_depth[e.timestamp] for e in tracked if e.timestamp in keyframe_depth]
+    assert len(ratios) >= 10
+    assert np.all(np.abs(np.log(ratios)) < np.log(1.15))  # the mapped keyframe's points, adjusted since
+
+
 @pytest.mark.parametrize("min_parallax_deg", [1.1, 2.0])
 def test_new_points_are_seen_with_the_configured_parallax(circle, monkeypatch, min_parallax_deg):
     """A keyframe's tilt error moves a new point's depth by about that error over its parallax:

@@ -179,7 +179,7 @@ class LocalMapper:
         """New points from unmatched features of two keyframes (epipolar band, descriptor ratio,
         rotation consistency, parallax, reprojection and scale checks)."""
         baseline = np.linalg.norm(kf.centre - nb.centre)
-        if baseline / max(self.map.median_depth(nb), 1e-9) < 0.01:
+        if baseline < 0.01 * self.map.median_depth(nb):  # a neighbour that sees no points yet (NaN) is not held to it
             return
         free_a = np.flatnonzero(kf.point_ids < 0)
         free_b = np.flatnonzero(nb.point_ids < 0)

@@ -346,9 +346,11 @@ class Map:
         return min(self.keyframes, default=None)
 
     def median_depth(self, kf: KeyFrame) -> float:
+        """Median depth (map units) of the live points ``kf`` sees; NaN when it sees none (a
+        keyframe not yet mapped, or every point culled)."""
         ids = kf.point_ids[self.rows_with_points(kf.point_ids)]
         if len(ids) == 0:
-            return 1.0
+            return float("nan")
         depth = self.store.position[ids] @ kf.T_cw[2, :3] + kf.T_cw[2, 3]
         return float(np.median(depth))
 

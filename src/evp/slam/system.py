@@ -416,7 +416,7 @@ class SlamSystem(Estimator):
             self.map.add_observation(point, kf1, int(b))
         adjust_whole_map(self.map, self.extractor.scale_factors, self.K, evaluations=20)
         depth = self.map.median_depth(kf0)
-        if depth <= 0 or len(self.map.points) < s.init_min_triangulated:
+        if not depth > 0 or len(self.map.points) < s.init_min_triangulated:
             self._discard_map()
             return False
         self._rescale(s.initial_median_depth_m / depth)
@@ -545,13 +545,16 @@ class SlamSystem(Estimator):
     def _depth_changed(self, T_cw: np.ndarray, matched: np.ndarray, reference: KeyFrame) -> bool:
         """Whether the tracked points' median depth differs from the reference keyframe's by more
         than ``slam.keyframe_depth_change`` (relative): the camera moved along its axis."""
+        ratio = self._tracked_depth(T_cw, matched) / self.map.median_depth(reference)
+        return bool(np.isfinite(ratio)) and abs(np.log(ratio)) > np.log1p(self.settings.keyframe_depth_change)
+
+    def _tracked_depth(self, T_cw: np.ndarray, matched: np.ndarray) -> float:
+        """Median depth (map units) of the map points a frame matched; NaN when it matched none."""
         rows = np.flatnonzero(matched >= 0)
         if len(rows) == 0:
-            return False
+            return float("nan")
         positions, _ = self._map_point_arrays(matched[rows])
-        depth = float(np.median(positions @ T_cw[2, :3] + T_cw[2, 3]))
-        ratio = depth / max(self.map.median_depth(reference), 1e-9)
-        return abs(np.log(ratio)) > np.log1p(self.settings.keyframe_depth_change)
+        return float(np.median(positions @ T_cw[2, :3] + T_cw[2, 3]))
 
     def _budget_features(self, inliers: int, features: int) -> None:
         """More features for the next frame while tracking is starved (they multiply what it
@@ -863,8 +866,15 @@ class SlamSystem(Estimator):
         if state == TrackingState.RELOCALIZED:
             self.state = TrackingState.OK
         quality = int(min(100, 100 * self._last_inliers / max(1, self.extractor.settings.n_features // 4)))
-        depth = self.map.median_depth(reference) if reference is not None else None
-        return PoseEstimate(frame.timestamp, se3_inverse(T_cw), state, quality, scene_depth=depth)
+        return PoseEstimate(frame.timestamp, se3_inverse(T_cw), state, quality, scene_depth=self._scene_depth(frame.timestamp, reference))
+
+    def _scene_depth(self, timestamp: float, reference: KeyFrame | None) -> float | None:
+        """The reference keyframe's median depth; a keyframe made on this very frame is mapped
+        before the next one (its points are not yet its own), so then this frame's matched points'."""
+        depth = self.map.median_depth(reference) if reference is not None else float("nan")
+        if not np.isfinite(depth) and self._last is not None and self._last.timestamp == timestamp:
+            depth = self._tracked_depth(self._last.T_cw, self._last.point_ids)
+        return float(depth) if np.isfinite(depth) else None
 
     def _keyframe_pose(self, kf_id: int) -> np.ndarray | None:
         """``T_cw`` of a keyframe, through the parent chain of culled ones."""

@@ -69,3 +69,21 @@ def test_seed002_scores_the_fused_track_after_the_alignment_phase_above_15_m_as_
     assert scores["near_target"]["count"] == ((times > 30.0) & (np.abs(up - 60.0) < 2.0)).sum()
     assert scores["vs_truth_mean_m"] == pytest.approx(1.0)
     assert _fused_scores(Trajectory(truth_xyz[:1], quats[:1], times[:1], "fused"), gps, 30.0, truth, 60.0)["whole"] is None
+
+
+def test_seed002_tells_the_scored_fixes_own_error_against_the_truth():
+    """The floor under every error against GPS: the fixes scored (after the phase, above 15 m)
+    against the truth; None when no fix is scored."""
+    from evp.experiments.seed002_flights import _gps_own_error
+    from evp.fusion.geodesy import EnuFrame
+    from evp.fusion.gps_input import GpsTrack
+    from evp.types import Trajectory
+
+    times = np.arange(0.0, 100.0, 0.5)
+    up = np.interp(times, [0, 20, 80, 100], [0, 60, 60, 0])
+    truth_xyz = np.column_stack([2.0 * times, np.zeros_like(times), up])
+    truth = Trajectory(truth_xyz, np.tile([0.0, 0.0, 0.0, 1.0], (len(times), 1)), times, "truth")
+    north = np.where((times > 30.0) & (up > 15.0), 2.0, 50.0)  # 2 m off where scored, 50 m where not
+    gps = GpsTrack(EnuFrame(0.0, 0.0, 0.0), times, truth_xyz + np.column_stack([np.zeros_like(times), north, np.zeros_like(times)]), np.full(len(times), 1.5))
+    assert _gps_own_error(gps, 30.0, truth) == pytest.approx(2.0)
+    assert _gps_own_error(gps, 200.0, truth) is None

@@ -311,7 +311,7 @@ class NavigationSettings(_Section):
     )
     hold_map_on_gps_loss: bool = Field(
         True,
-        description="when GPS stops being trusted (spoofing alarm, outage), fit the visual map's scale and pose to the GPS fixes of the trusted phase and hold the scale and attitude there until GPS is trusted again (evp.fusion.gps_map_fit; seed 002's 15 flights: docs/decisions.md)",
+        description="when GPS stops being trusted (spoofing alarm, outage), fit the visual map's scale and pose to the GPS fixes of the trusted phase and hold the scale, attitude and east-north placement there (the barometer keeps the height) until GPS is trusted again (evp.fusion.gps_map_fit; seed 002's 15 flights: docs/decisions.md)",
     )
     use_wheels: bool = Field(
         True,

@@ -40,6 +40,7 @@ ACCEL_BIAS = slice(12, 15)
 LOG_SCALE = 15
 MAP_ATTITUDE = slice(16, 19)
 MAP_POSITION = slice(19, 22)
+MAP_HORIZONTAL_POSITION = slice(19, 21)  # the map's east and north placement: what nothing but GPS observes
 BARO_BIAS = 22
 GPS_BIAS = slice(23, 26)
 ERROR_DIM = 26

@@ -28,7 +28,7 @@ The body moves with the map (its offset from the map's origin and its velocity g
 scale), and the other states keep the filter's covariance given the scale.
 
 The map's pose and scale can be set from outside and held (:meth:`NavigationFilter.hold_map`: the
-fit of the visual map to GPS when GPS is lost): held states are Schmidt-Kalman "consider"
+fit of the visual map to GPS when GPS is lost; all but its height): held states are Schmidt-Kalman "consider"
 states, their uncertainty kept in the covariance (and so in every other state's) but no update
 moving them, until :meth:`NavigationFilter.release_map` or a jump of the visual map.
 """
@@ -53,6 +53,7 @@ from evp.fusion.nav_state import (
     GYRO_BIAS,
     LOG_SCALE,
     MAP_ATTITUDE,
+    MAP_HORIZONTAL_POSITION,
     MAP_POSE,
     MAP_POSITION,
     MAP_STATES,
@@ -313,8 +314,11 @@ class NavigationFilter:
     def hold_map(self, log_scale: float, R_world_map: np.ndarray, t_world_map: np.ndarray, covariance: np.ndarray) -> None:
         """Set the visual map's scale and pose in the world (``covariance``: 7 x 7 over the log
         scale, the map attitude's world-frame error and its translation) in every state of the
-        history, uncorrelated with the rest, and hold the scale and attitude there: no update
-        moves them (the translation stays free) until :meth:`release_map` or a jump of the map.
+        history, uncorrelated with the rest, and hold the scale, attitude and horizontal placement
+        there: no update moves them (the height stays free for the barometer) until
+        :meth:`release_map` or a jump of the map. Nothing but GPS observes where the map lies
+        east and north; left free, the placement moved with the states the covariance ties it to
+        (seed 002's flight A: 0.8 m east as the barometer moved its height, docs/decisions.md).
         The body moves with the map, keeping where the map has it: its position by the change of
         the map's placement, its velocity and heading by the change of the map's heading (the
         tilt stays the IMU's: gravity fixes it better than a map fitted to GPS)."""
@@ -330,7 +334,7 @@ class NavigationFilter:
             node.state = replace(x, log_scale=float(log_scale), R_world_map=R_new, t_world_map=t_new)
             node.covariance = _uncorrelated(node.covariance, states, covariance)
         self._held[:] = False
-        self._held[np.r_[LOG_SCALE, MAP_ATTITUDE]] = True
+        self._held[np.r_[LOG_SCALE, MAP_ATTITUDE, MAP_HORIZONTAL_POSITION]] = True
 
     def release_map(self) -> None:
         """Updates move the map's scale and attitude again."""

@@ -38,9 +38,9 @@ pull-off is gated before the monitor's window mean grows past its bound). Fixes 
 restored) are kept in ``gps_monitor.events`` and told as warnings. Each trusted fix (each fix of
 the alignment phase) is also paired with the camera's position in the visual map; when GPS stops
 being trusted (``hold_map_on_gps_loss``), the visual map's scale and pose fitted to those pairs
-(:mod:`evp.fusion.gps_map_fit`) replace the filter's, the body moving with the map, and the scale
-and attitude are held (no update moves them) until GPS is trusted again (``map_held`` /
-``map_released``; a jump of the map frees its attitude).
+(:mod:`evp.fusion.gps_map_fit`) replace the filter's, the body moving with the map, and the scale,
+attitude and horizontal placement are held (no update moves them; the barometer keeps the height)
+until GPS is trusted again (``map_held`` / ``map_released``; a jump of the map frees its pose).
 
 A saved map's georeference (``map_georeference``, :mod:`evp.fusion.map_georeference`: SLAM
 started from a map saved by a georeferenced run): the world is ENU at the map's origin from the

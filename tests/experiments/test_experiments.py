@@ -72,7 +72,7 @@ def test_seed002_scores_the_fused_track_after_the_alignment_phase_above_15_m_as_
 
 
 def test_seed002_tells_the_scored_fixes_own_error_against_the_truth():
-    """The floor under every error against GPS: the fixes scored (after the phase, above 15 m)
+    """What a track on the truth would score against GPS: the fixes scored (after the phase, above 15 m)
     against the truth; None when no fix is scored."""
     from evp.experiments.seed002_flights import _gps_own_error
     from evp.fusion.geodesy import EnuFrame

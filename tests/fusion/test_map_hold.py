@@ -43,3 +43,19 @@ def test_a_held_map_keeps_scale_attitude_and_east_north_and_the_barometer_moves_
         else:
             assert after.scale == held.scale and np.array_equal(after.R_world_map, held.R_world_map)
             assert np.array_equal(after.t_world_map[:2], held.t_world_map[:2])
+
+
+def test_the_body_carried_with_a_held_map_errs_as_the_map_does_in_the_world_not_in_the_map():
+    """Held off by a fit's metres, the map moves the body in the world with it: the body's world
+    position is as uncertain as the fit makes it, and its place in the map (what a visual pose
+    tells) is as certain as before whatever the fit's uncertainty, so visual poses keep steering it."""
+    predicted, world = [], []
+    for fit_sigma in (1e-3, 0.05):
+        nav = _anchored_filter(scale=3.0, scale_sigma=0.1)
+        x = nav.state
+        nav.hold_map(x.log_scale + 0.02, x.R_world_map, x.t_world_map + [1.0, -2.0, 0.5], np.eye(7) * fit_sigma**2)
+        lin = _seen_from(nav.state, np.zeros(3)).linearise(nav.state, np.zeros(3), nav.settings)
+        predicted.append((lin.jacobian @ nav.covariance @ lin.jacobian.T)[:3, :3])  # the camera's map position
+        world.append(np.trace(nav.covariance[0:3, 0:3]))
+    assert np.allclose(predicted[0], predicted[1], rtol=0.01)  # the tilt, the IMU's, couples a trace in through the lever
+    assert world[1] > world[0] + 3 * 0.05**2  # the placement's variance at least, in all three axes

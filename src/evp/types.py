@@ -150,7 +150,7 @@ class PoseEstimate:
     T_visual_cam: np.ndarray | None = None
     velocity: np.ndarray | None = None  # m/s in the world frame, from a navigation stage
     velocity_covariance: np.ndarray | None = None  # 3x3, (m/s)^2, world frame
-    scene_depth: float | None = None  # median depth of what the estimator tracked (its reference keyframe's points), in its own units
+    scene_depth: float | None = None  # median depth of what the estimator tracked (its reference keyframe's points; a keyframe's own frame, its matched points), in its own units
 
     @property
     def visual_pose(self) -> np.ndarray:

@@ -332,7 +332,7 @@ class NavigationFilter:
     def hold_map(self, log_scale: float, R_world_map: np.ndarray, t_world_map: np.ndarray, covariance: np.ndarray) -> None:
         """Set the visual map's scale and pose in the world (``covariance``: 7 x 7 over the log
         scale, the map attitude's world-frame error and its translation) in every state of the
-        history, uncorrelated with the rest, and hold the scale, attitude and horizontal placement
+        history, apart from the rest but for the body it carries, and hold the scale, attitude and horizontal placement
         there: no update moves them (the height stays free for the barometer) until
         :meth:`release_map` or a jump of the map. Nothing but GPS observes where the map lies
         east and north; left free, the placement moved with the states the covariance ties it to
@@ -358,7 +358,7 @@ class NavigationFilter:
         self._held[np.r_[LOG_SCALE, MAP_ATTITUDE, MAP_HORIZONTAL_POSITION]] = True
 
     def release_map(self) -> None:
-        """Updates move the map's scale and attitude again."""
+        """Updates move the map's scale, attitude and placement again."""
         self._held[:] = False
 
     @property
